@@ -1,0 +1,48 @@
+"""optoenc: differentiable optical encoders trained end to end with digital decoders.
+
+``import optoenc`` is light: it loads neither torch nor any plugin. The public
+names below are imported on first access.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+__version__ = "0.1.0"
+
+#: public name -> module that defines it
+_LAZY = {
+    "OpticalEncoder": "optoenc.encoders.base",
+    "EncoderConfig": "optoenc.encoders.base",
+    "Decoder": "optoenc.decoders",
+    "SceneConfig": "optoenc.geometry",
+    "SensorConfig": "optoenc.geometry",
+    "FidelityConfig": "optoenc.geometry",
+    "Settings": "optoenc.settings",
+    "setting": "optoenc.settings",
+    "hookimpl": "optoenc.hookspecs",
+    "get_registry": "optoenc.plugins",
+    "register_plugin": "optoenc.plugins",
+    "ConfigError": "optoenc.errors",
+    "DataError": "optoenc.errors",
+    "PluginError": "optoenc.errors",
+    "PhysicsError": "optoenc.errors",
+    "OptoencError": "optoenc.errors",
+    "build_encoder": "optoenc.config",
+    "RunConfig": "optoenc.config",
+}
+
+__all__ = ["__version__", *_LAZY]
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'optoenc' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)

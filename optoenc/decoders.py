@@ -1,0 +1,109 @@
+"""Digital decoders: classifiers on the sensor embedding, emitting logits.
+
+Both follow REFERENCE §3 exactly; the loss (cross-entropy) is applied to the
+logits by the training module, never a softmax here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import torch
+from torch import nn
+
+from .encoders.base import _coerce
+from .settings import Settings, setting
+
+__all__ = ["DecoderConfig", "Decoder", "Logistic", "FCNN", "EMBEDDING_NORMS"]
+
+#: Pre-decoder normalisations of the embedding.
+EMBEDDING_NORMS = ("auto", "none", "standardize", "batchnorm_relu")
+
+
+@dataclass
+class DecoderConfig(Settings):
+    """Settings every decoder has."""
+
+    embedding_norm: str = setting(
+        "auto",
+        "normalisation of the embedding before the decoder: 'standardize' (scalar mean/std of the "
+        "training embeddings, the paper's fixed-encoder protocol), 'batchnorm_relu' (the paper's learned-SLM "
+        "protocol), 'none'; 'auto' picks batchnorm_relu for learnable encoders, standardize otherwise",
+        choices=EMBEDDING_NORMS,
+    )
+
+
+class Decoder(nn.Module):
+    """Base class: embedding ``(B, C, a, b)`` -> logits ``(B, num_classes)``.
+
+    Args:
+        config: the decoder's ``Config`` (or a mapping).
+        in_shape: ``(C, a, b)`` of one embedding (from the encoder, never configured).
+        num_classes: number of classes (from the dataset).
+        learnable_encoder: resolves ``embedding_norm='auto'``.
+    """
+
+    name: ClassVar[str] = ""
+    Config: ClassVar[type] = DecoderConfig
+
+    def __init__(self, config: Any = None, *, in_shape: tuple[int, ...], num_classes: int = 10, learnable_encoder: bool = False):
+        super().__init__()
+        self.config = _coerce(self.Config, config, "decoder")
+        self.in_shape = tuple(int(s) for s in in_shape)
+        self.in_features = int(torch.tensor(self.in_shape).prod())
+        self.num_classes = int(num_classes)
+        norm = self.config.embedding_norm
+        if norm == "auto":
+            norm = "batchnorm_relu" if learnable_encoder else "standardize"
+        self.norm_kind = norm
+        self.norm = nn.Sequential(nn.BatchNorm1d(self.in_features), nn.ReLU()) if norm == "batchnorm_relu" else nn.Identity()
+        self.register_buffer("mean", torch.zeros(()))
+        self.register_buffer("std", torch.ones(()))
+        self.head = self.build()
+
+    def build(self) -> nn.Module:
+        """The classifier on the flattened, normalised embedding."""
+        raise NotImplementedError
+
+    def set_statistics(self, mean: float, std: float) -> None:
+        """Scalar statistics of the training embeddings, used by ``standardize``."""
+        self.mean.fill_(float(mean))
+        self.std.fill_(max(float(std), torch.finfo(torch.float32).tiny))
+
+    def forward(self, embedding: torch.Tensor) -> torch.Tensor:
+        x = embedding.flatten(1)
+        if self.norm_kind == "standardize":
+            x = (x - self.mean) / self.std
+        return self.head(self.norm(x))
+
+    @classmethod
+    def summary(cls) -> str:
+        return (cls.__doc__ or "").strip().splitlines()[0] if cls.__doc__ else ""
+
+
+class Logistic(Decoder):
+    """Logistic regression: flatten -> Linear(n, classes)."""
+
+    name = "logistic"
+
+    def build(self) -> nn.Module:
+        return nn.Linear(self.in_features, self.num_classes)
+
+
+@dataclass
+class FCNNConfig(DecoderConfig):
+    hidden: int = setting(800, "hidden units", ge=1)
+
+
+class FCNN(Decoder):
+    """Two-layer FCNN: flatten -> Linear(n, 800, no bias) -> BatchNorm1d -> ReLU -> Linear(800, classes)."""
+
+    name = "fcnn"
+    Config = FCNNConfig
+
+    def build(self) -> nn.Module:
+        h = self.config.hidden
+        return nn.Sequential(
+            nn.Linear(self.in_features, h, bias=False), nn.BatchNorm1d(h), nn.ReLU(), nn.Linear(h, self.num_classes)
+        )

@@ -1,0 +1,241 @@
+"""`OpticalEncoder`: the abstract base every encoder (built-in or plugin) derives from.
+
+An encoder holds its physical settings (``Config``, SI units) and parameters,
+and supplies one thing: its intensity PSF on the simulation grid
+(:meth:`OpticalEncoder.compute_psf`). The base class does the rest with the
+shared imaging steps of :mod:`optoenc.imaging`: placing the scene in the
+object plane (magnification ``d2 / d1``), convolving, integrating over the
+sensor pixels and adding noise.
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+from dataclasses import dataclass
+from typing import Any, ClassVar, Mapping
+
+import torch
+from torch import nn
+
+from .. import devices, imaging
+from ..errors import ConfigError
+from ..geometry import FidelityConfig, Geometry, SceneConfig, SensorConfig
+from ..settings import Settings, setting
+
+__all__ = ["EncoderConfig", "OpticalEncoder"]
+
+#: Above this many operator entries the fine-grid (FFT) path is used instead.
+_MAX_OPERATOR_ENTRIES = 40_000_000
+
+
+@dataclass
+class EncoderConfig(Settings):
+    """Settings every encoder has: the encoder-to-sensor distance."""
+
+    d2: float = setting(4e-3, "encoder-to-sensor distance d2", unit="m", gt=0)
+
+
+def _coerce(cls: type, value: Any, section: str) -> Any:
+    if value is None:
+        return cls()
+    if isinstance(value, cls):
+        return value
+    if isinstance(value, Mapping):
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(value) - names)
+        if unknown:
+            raise ConfigError(f"{section}.{unknown[0]}", value[unknown[0]], f"unknown setting; known: {', '.join(sorted(names))}")
+        try:
+            return cls(**value)
+        except ConfigError as err:
+            raise err.with_prefix(section) from None
+    raise ConfigError(section, value, f"must be a {cls.__name__} or a mapping")
+
+
+class OpticalEncoder(nn.Module, abc.ABC):
+    """An optical encoder: scene ``(B, C, h, w)`` -> sensor embedding ``(B, C_out, a, b)``.
+
+    Subclasses set ``name`` (the registry name), ``Config`` (a dataclass
+    deriving from :class:`EncoderConfig`), the capability flags ``learnable``
+    and ``linear``, and implement :meth:`compute_psf`.
+
+    Args:
+        config: the encoder's ``Config`` (or a mapping of its fields).
+        scene: object size and distance (:class:`SceneConfig`).
+        sensor: sensor, embedding size and noise (:class:`SensorConfig`).
+        fidelity: simulation grid and precision (:class:`FidelityConfig`).
+    """
+
+    name: ClassVar[str] = ""
+    Config: ClassVar[type] = EncoderConfig
+    learnable: ClassVar[bool] = False
+    linear: ClassVar[bool] = True
+
+    def __init__(
+        self,
+        config: Any = None,
+        *,
+        scene: SceneConfig | Mapping | None = None,
+        sensor: SensorConfig | Mapping | None = None,
+        fidelity: FidelityConfig | Mapping | None = None,
+    ):
+        super().__init__()
+        self.config = _coerce(self.Config, config, "encoder")
+        self.scene_config = _coerce(SceneConfig, scene, "scene")
+        self.sensor = _coerce(SensorConfig, sensor, "sensor")
+        self.fidelity = _coerce(FidelityConfig, fidelity, "fidelity")
+        self.geometry = Geometry.of(self.sensor, self.fidelity)
+        self.optics_dtype = getattr(torch, self.fidelity.resolved()["dtype"])
+        self._psf_cache: tuple[Any, torch.Tensor] | None = None
+        self._op_cache: dict[Any, Any] = {}
+
+    # ----------------------------------------------------------------- to implement
+    @abc.abstractmethod
+    def compute_psf(self) -> torch.Tensor:
+        """The un-normalised intensity PSF on the simulation grid.
+
+        Returns:
+            ``(C, H, W)`` non-negative tensor in ``self.optics_dtype``, with
+            ``(H, W) = self.geometry.grid``, the optical axis at
+            ``(H // 2, W // 2)`` and ``C`` either 1 (achromatic) or 3 (R, G, B
+            at :data:`optoenc.devices.WAVELENGTHS_RGB`).
+        """
+
+    # ----------------------------------------------------------------- geometry
+    @property
+    def d2(self) -> float:
+        """Encoder-to-sensor distance, metres."""
+        return float(self.config.d2)
+
+    @property
+    def magnification(self) -> float:
+        """|M| = d2 / d1 (the image is also inverted)."""
+        return self.d2 / self.scene_config.distance
+
+    def object_height_px(self, height: float | None = None) -> float:
+        """Height on the grid, in grid pixels, of an object of ``height`` metres (default: the scene's)."""
+        h = self.scene_config.object_height if height is None else height
+        return h * self.magnification / self.geometry.spacing[0]
+
+    @property
+    def channels(self) -> int:
+        """Output channels: 1 for a gray sensor, 3 for RGB."""
+        return 1 if self.sensor.color == "gray" else 3
+
+    @property
+    def output_shape(self) -> tuple[int, int, int]:
+        """``(C, a, b)`` of one embedding."""
+        return (self.channels, *self.geometry.embedding)
+
+    # ----------------------------------------------------------------- PSF
+    def _state_key(self) -> tuple:
+        return (torch.is_grad_enabled() and self.training,) + tuple(
+            (p._version, p.data_ptr()) for p in self.parameters()
+        ) + tuple((b._version, b.data_ptr()) for b in self.buffers())
+
+    def psf(self) -> torch.Tensor:
+        """Normalised intensity PSF as the sensor sees it: ``(channels, H, W)``, each channel summing to 1.
+
+        A gray sensor sees the spectral PSF weighted by
+        :data:`optoenc.devices.GRAYSCALE_WEIGHTS`. The PSF is recomputed only
+        when a parameter changes (once per optimiser step when learning).
+        """
+        key = self._state_key()
+        if self._psf_cache is not None and self._psf_cache[0] == key:
+            return self._psf_cache[1]
+        raw = self.compute_psf()
+        if raw.dim() != 3 or raw.shape[0] not in (1, 3) or tuple(raw.shape[1:]) != self.geometry.grid:
+            raise RuntimeError(
+                f"{type(self).__name__}.compute_psf returned shape {tuple(raw.shape)}; "
+                f"expected (1 or 3, {self.geometry.grid[0]}, {self.geometry.grid[1]})"
+            )
+        raw = imaging.normalize_psf(raw, name=f"encoder {self.name}")
+        if self.channels == 1 and raw.shape[0] == 3:
+            w = torch.tensor(devices.GRAYSCALE_WEIGHTS, dtype=raw.dtype, device=raw.device)
+            raw = (w[:, None, None] * raw).sum(0, keepdim=True)
+        elif self.channels == 3 and raw.shape[0] == 1:
+            raw = raw.expand(3, -1, -1)
+        psf = raw
+        self._psf_cache = (key, psf)
+        return psf
+
+    # ----------------------------------------------------------------- imaging
+    def _correlations(self, scene_shape: tuple[int, int], height_px: float, device) -> tuple[torch.Tensor, torch.Tensor]:
+        key = (scene_shape, round(height_px, 9), self.optics_dtype, str(device))
+        if key not in self._op_cache:
+            H, W = self.geometry.grid
+            a, b = self.geometry.embedding
+            py, px = imaging.placement_matrices(scene_shape, (H, W), height_px)
+            ry = imaging.correlation_tensor(imaging.box_matrix(H, a), py, H)
+            rx = imaging.correlation_tensor(imaging.box_matrix(W, b), px, W)
+            self._op_cache[key] = (ry.to(device, self.optics_dtype), rx.to(device, self.optics_dtype))
+        return self._op_cache[key]
+
+    def operator(self, scene_shape: tuple[int, int], height: float | None = None) -> torch.Tensor:
+        """The ``(C, a, b, h, w)`` matrix from scene pixels to embedding pixels (noise-free).
+
+        Exact for a piecewise-constant scene: it equals place -> convolve ->
+        integrate on the simulation grid (see :mod:`optoenc.imaging`).
+        """
+        psf = self.psf()
+        ry, rx = self._correlations(tuple(scene_shape), self.object_height_px(height), psf.device)
+        key = ("op", tuple(scene_shape), height, self._state_key())
+        cached = self._op_cache.get("op")
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        op = imaging.scene_operator(psf, ry, rx)
+        self._op_cache["op"] = (key, op)
+        return op
+
+    def measure(self, scene: torch.Tensor, height: float | None = None, method: str = "auto") -> torch.Tensor:
+        """Noise-free embedding of ``(B, C, h, w)`` scenes of physical height ``height`` metres.
+
+        Args:
+            scene: non-negative intensities; ``C`` is 1 or the sensor's channels.
+            height: physical height of the scene image (default
+                ``scene.object_height``).
+            method: ``"operator"`` (precomputed scene->embedding matrix),
+                ``"direct"`` (place, FFT-convolve and integrate on the grid)
+                or ``"auto"`` (operator unless it would be too large).
+
+        Returns:
+            ``(B, channels, a, b)`` in the scene's dtype.
+        """
+        if scene.dim() != 4:
+            raise ConfigError("scene", tuple(scene.shape), "must be a (batch, channels, height, width) tensor")
+        h, w = scene.shape[-2:]
+        a, b = self.geometry.embedding
+        if method == "auto":
+            method = "operator" if self.channels * a * b * h * w <= _MAX_OPERATOR_ENTRIES else "direct"
+        x = scene.to(self.optics_dtype)
+        if method == "operator":
+            out = imaging.apply_operator(self.operator((h, w), height), x)
+        elif method == "direct":
+            placed = imaging.place(x, self.geometry.grid, self.object_height_px(height))
+            out = imaging.integrate(imaging.fft_convolve(placed, self.psf()[None]), (a, b))
+        else:
+            raise ConfigError("method", method, "one of 'auto', 'operator', 'direct'")
+        return out.to(scene.dtype)
+
+    def add_sensor_noise(self, clean: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+        """Sensor noise (zero-mean, after integration) and optional ADC quantisation."""
+        s = self.sensor
+        out = imaging.add_noise(clean, s.snr_db, s.noise, s.photons, s.read_noise, generator)
+        if s.adc_bits is not None:
+            out = imaging.quantize(out, s.adc_bits)
+        return out
+
+    def forward(self, scene: torch.Tensor, height: float | None = None, noise: bool = True) -> torch.Tensor:
+        """Sensor embedding of ``(B, C, h, w)`` scenes, noise included unless ``noise=False``."""
+        clean = self.measure(scene, height)
+        return self.add_sensor_noise(clean) if noise else clean
+
+    # ----------------------------------------------------------------- description
+    @classmethod
+    def summary(cls) -> str:
+        """First line of the class docstring (shown in listings)."""
+        return (cls.__doc__ or "").strip().splitlines()[0] if cls.__doc__ else ""
+
+    def extra_repr(self) -> str:
+        return f"name={self.name!r}, config={self.config}"

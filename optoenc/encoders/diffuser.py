@@ -1,0 +1,51 @@
+"""`diffuser`: a lensless camera with a measured diffuser PSF (DiffuserCam)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import torch
+
+from .. import psf_files
+from ..settings import setting
+from .base import EncoderConfig, OpticalEncoder
+
+__all__ = ["Diffuser", "DiffuserConfig"]
+
+
+@dataclass
+class DiffuserConfig(EncoderConfig):
+    d2: float = setting(4e-3, "diffuser-to-sensor distance d2 (sets the magnification)", unit="m", gt=0)
+    psf_path: Optional[str] = setting(
+        None, "measured PSF file (PNG, TIFF or NPY) spanning the sensor; null: the bundled DiffuserCam PSF"
+    )
+    background: Optional[float] = setting(
+        None, "background level subtracted from the raw PSF, in file counts; null: mean of the dark corners", ge=0
+    )
+
+
+class Diffuser(OpticalEncoder):
+    """Measured diffuser PSF (DiffuserCam, double-sided tape ~4 mm from the sensor)."""
+
+    name = "diffuser"
+    Config = DiffuserConfig
+    learnable = False
+    linear = True
+
+    @property
+    def psf_path(self) -> str:
+        return str(self.config.psf_path or psf_files.bundled_psf_path())
+
+    def compute_psf(self) -> torch.Tensor:
+        raw = psf_files.read_psf(self.psf_path)
+        clean = psf_files.subtract_background(raw, self.config.background)
+        if not (clean > 0).any():
+            from ..errors import ConfigError
+
+            raise ConfigError("encoder.psf_path", self.psf_path, "PSF is all zero after background subtraction")
+        return psf_files.resample_area(clean, self.geometry.grid).to(self.optics_dtype)
+
+    def cache_token(self) -> str:
+        """What, beyond the config, determines this encoder's PSF: the file's contents."""
+        return psf_files.file_digest(self.psf_path)

@@ -1,0 +1,98 @@
+"""Scene, sensor and fidelity settings shared by every encoder (SI units).
+
+These three settings groups describe what every optical encoder images (the
+scene), what it images onto (the sensor and its embedding) and how finely it
+is simulated (fidelity). An encoder's own ``Config`` holds only what is
+specific to it (its distance ``d2``, its mask, ...).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Optional
+
+from . import devices
+from .errors import ConfigError
+from .settings import Settings, setting
+
+__all__ = ["SceneConfig", "SensorConfig", "FidelityConfig", "FIDELITY_PRESETS", "Geometry"]
+
+
+@dataclass
+class SceneConfig(Settings):
+    """The object in front of the camera."""
+
+    object_height: float = setting(devices.SCENE_HEIGHT, "physical height of the scene image (a digit)", unit="m", gt=0)
+    distance: float = setting(devices.SCENE_DISTANCE, "scene-to-encoder distance d1", unit="m", gt=0)
+
+
+@dataclass
+class SensorConfig(Settings):
+    """The sensor (Raspberry Pi HQ / IMX477 by default), its embedding and noise."""
+
+    pixel_pitch: float = setting(devices.IMX477_PITCH, "physical sensor pixel pitch", unit="m", gt=0)
+    resolution: tuple[int, int] = setting(devices.IMX477_RESOLUTION, "physical sensor pixels (rows, columns)", ge=1)
+    embedding: tuple[int, int] = setting((24, 32), "embedding size (rows, columns) after pixel integration", ge=1)
+    color: str = setting("gray", "sensor colour: 'gray' (one channel) or 'rgb'", choices=("gray", "rgb"))
+    noise: str = setting("gaussian", "noise model", choices=("gaussian", "poisson", "none"))
+    snr_db: Optional[float] = setting(devices.SNR_DB, "SNR of the gaussian noise (null: no noise)", unit="dB")
+    photons: float = setting(1e4, "photons at the brightest pixel (poisson model)", gt=0)
+    read_noise: float = setting(0.0, "read noise (poisson model)", unit="e-", ge=0)
+    adc_bits: Optional[int] = setting(None, "ADC bit depth (null: no quantisation)", ge=1, le=32)
+
+    @property
+    def size(self) -> tuple[float, float]:
+        """Physical sensor size (height, width), metres."""
+        return (self.resolution[0] * self.pixel_pitch, self.resolution[1] * self.pixel_pitch)
+
+
+#: Named fidelity presets: the one table of their values (docs list it).
+FIDELITY_PRESETS: dict[str, dict] = {
+    "reference": {"grid": (768, 1024), "dtype": "float64", "padding": 2.0},
+    "default": {"grid": (384, 512), "dtype": "float32", "padding": 1.0},
+    "fast": {"grid": (192, 256), "dtype": "float32", "padding": 0.5},
+}
+
+
+@dataclass
+class FidelityConfig(Settings):
+    """How finely the optics are simulated: the speed/accuracy knobs.
+
+    ``preset`` fills every knob left at ``null``; a knob set explicitly wins.
+    """
+
+    preset: str = setting("default", "named preset filling the knobs left null", choices=tuple(FIDELITY_PRESETS))
+    grid: Optional[tuple[int, int]] = setting(None, "simulation grid (rows, columns) over the sensor area", ge=1)
+    dtype: Optional[str] = setting(None, "floating point precision of the optics", choices=("float32", "float64"))
+    padding: Optional[float] = setting(None, "propagation zero padding, as a fraction of the grid per side", ge=0)
+
+    def resolved(self) -> dict:
+        """The knob values after filling the nulls from the preset."""
+        out = dict(FIDELITY_PRESETS[self.preset])
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if f.name != "preset" and v is not None:
+                out[f.name] = tuple(v) if isinstance(v, (list, tuple)) else v
+        return out
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """Derived simulation geometry (read-only), from sensor + fidelity settings."""
+
+    grid: tuple[int, int]
+    spacing: tuple[float, float]
+    embedding: tuple[int, int]
+
+    @classmethod
+    def of(cls, sensor: SensorConfig, fidelity: FidelityConfig) -> "Geometry":
+        grid = tuple(int(g) for g in fidelity.resolved()["grid"])
+        h, w = sensor.size
+        emb = tuple(int(e) for e in sensor.embedding)
+        for axis, (e, g) in enumerate(zip(emb, grid)):
+            if e > g:
+                raise ConfigError(
+                    f"sensor.embedding[{axis}]", e, f"must be <= the simulation grid {grid[axis]} (fidelity.grid)"
+                )
+        return cls(grid=grid, spacing=(h / grid[0], w / grid[1]), embedding=emb)

@@ -1,0 +1,52 @@
+"""pluggy hook specifications: the whole plugin interface of optoenc.
+
+A plugin is a module (or object) with functions decorated by
+:data:`hookimpl`, advertised under the ``optoenc`` entry-point group::
+
+    [project.entry-points.optoenc]
+    my_plugin = "my_package.plugin"
+
+Each hook receives a registrar; call ``registry.add(cls)`` for each class.
+optoenc registers its own built-ins through these same hooks
+(:mod:`optoenc.builtins`).
+"""
+
+from __future__ import annotations
+
+import pluggy
+
+__all__ = ["PROJECT", "hookspec", "hookimpl", "HOOKS"]
+
+PROJECT = "optoenc"
+hookspec = pluggy.HookspecMarker(PROJECT)
+#: Decorator for plugin hook implementations.
+hookimpl = pluggy.HookimplMarker(PROJECT)
+
+
+@hookspec
+def optoenc_register_encoders(registry):
+    """Register `OpticalEncoder` subclasses: ``registry.add(MyEncoder)``."""
+
+
+@hookspec
+def optoenc_register_decoders(registry):
+    """Register `Decoder` subclasses (digital classifiers on the embedding)."""
+
+
+@hookspec
+def optoenc_register_augmentations(registry):
+    """Register `Augmentation` subclasses (object-plane transforms)."""
+
+
+@hookspec
+def optoenc_register_datasets(registry):
+    """Register `Dataset` classes (scenes with labels)."""
+
+
+#: hook name -> registry kind, in registration order.
+HOOKS = {
+    "optoenc_register_encoders": "encoder",
+    "optoenc_register_decoders": "decoder",
+    "optoenc_register_augmentations": "augmentation",
+    "optoenc_register_datasets": "dataset",
+}

@@ -1,0 +1,297 @@
+"""The imaging steps every encoder shares, as plain functions on tensors.
+
+Scene -> object-plane placement (magnification d2/d1, inverted image) ->
+convolution with the intensity PSF -> pixel integration (box average over each
+sensor pixel) -> zero-mean noise at a target SNR -> optional ADC quantisation.
+
+Conventions:
+    * Images are ``(..., H, W)`` tensors; rows first, like the sensor.
+    * A PSF on an ``(H, W)`` grid has its optical axis at pixel
+      ``(H // 2, W // 2)``; the convolution is linear (zero padded, no
+      wrap-around) and its output is cropped back to the ``(H, W)`` grid.
+    * The scene is a piecewise-constant surface: pixel ``p`` of an ``n``-pixel
+      scene covers ``[p, p + 1) * size / n`` of its physical extent. Placing
+      it on a grid integrates that surface over each grid pixel with exact
+      fractional areas, so every grid samples the same object.
+    * Pixel integration averages over exact fractional areas
+      (``box_matrix``); it equals ``avg_pool2d`` when the grid divides.
+
+Because placement, convolution and integration are all linear, their
+composition for a given PSF is a small matrix from scene pixels to embedding
+pixels (:func:`scene_operator`), built from two 1-D correlation tensors that
+depend only on the geometry. Applying it costs a matrix product per batch
+and equals the fine-grid pipeline to rounding.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import torch
+import torch.nn.functional as F
+
+from .errors import ConfigError, PhysicsError
+
+__all__ = [
+    "area_matrix",
+    "box_matrix",
+    "placement_matrices",
+    "place",
+    "fft_convolve",
+    "integrate",
+    "correlation_tensor",
+    "scene_operator",
+    "apply_operator",
+    "add_noise",
+    "snr_sigma",
+    "quantize",
+    "normalize_psf",
+]
+
+
+def area_matrix(n_in: int, n_out: int, start: float, length: float, dtype=torch.float64) -> torch.Tensor:
+    """Overlap of ``n_in`` equal cells spanning ``[start, start + length)`` with unit output cells.
+
+    Args:
+        n_in: number of input cells (scene pixels along one axis).
+        n_out: number of output cells (grid pixels), cell ``y`` is ``[y, y+1)``.
+        start: position of the input's first edge, in output-cell units.
+        length: total extent of the input, in output-cell units (> 0).
+
+    Returns:
+        ``(n_out, n_in)`` matrix: entry ``[y, p]`` is the length of the
+        overlap of input cell ``p`` with output cell ``y`` (in output-cell
+        units), so ``M @ v`` is the average of the piecewise-constant input
+        over each output cell. Input cells outside ``[0, n_out)`` are cropped.
+    """
+    edges_in = start + torch.arange(n_in + 1, dtype=dtype) * (length / n_in)
+    lo = torch.maximum(edges_in[:-1][None, :], torch.arange(n_out, dtype=dtype)[:, None])
+    hi = torch.minimum(edges_in[1:][None, :], torch.arange(1, n_out + 1, dtype=dtype)[:, None])
+    return (hi - lo).clamp_min(0)
+
+
+def box_matrix(n_grid: int, n_out: int, dtype=torch.float64) -> torch.Tensor:
+    """Pixel integration along one axis: ``(n_out, n_grid)`` averaging matrix.
+
+    Output pixel ``a`` averages the grid over ``[a, a + 1) * n_grid / n_out``
+    with exact fractional weights; rows sum to one.
+    """
+    if not 1 <= n_out <= n_grid:
+        raise ConfigError("embedding", n_out, f"must be between 1 and the simulation grid size {n_grid}")
+    m = area_matrix(n_grid, n_out, 0.0, float(n_out), dtype=dtype)  # grid cells in output units
+    return m / m.sum(dim=1, keepdim=True)
+
+
+def placement_matrices(
+    scene_shape: tuple[int, int],
+    grid_shape: tuple[int, int],
+    height_px: float,
+    invert: bool = True,
+    dtype=torch.float64,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Row and column matrices placing an ``(h, w)`` scene centred on the grid.
+
+    Args:
+        scene_shape: ``(h, w)`` scene pixels.
+        grid_shape: ``(H, W)`` grid pixels.
+        height_px: the scene's height on the grid, in grid pixels (may be
+            fractional); the width follows from the aspect ratio.
+        invert: flip both axes (the image of a camera is inverted, M < 0).
+
+    Returns:
+        ``(Py, Px)`` with shapes ``(H, h)`` and ``(W, w)``; the placed scene
+        is ``Py @ scene @ Px.T``.
+    """
+    (h, w), (H, W) = scene_shape, grid_shape
+    width_px = height_px * w / h
+    if height_px > H or width_px > W:
+        warnings.warn(
+            f"the object ({height_px:.1f} x {width_px:.1f} grid px) is larger than the field of view "
+            f"({H} x {W} px): it is cropped",
+            stacklevel=3,
+        )
+    py = area_matrix(h, H, (H - height_px) / 2, height_px, dtype)
+    px = area_matrix(w, W, (W - width_px) / 2, width_px, dtype)
+    if invert:
+        py, px = py.flip(1), px.flip(1)
+    return py, px
+
+
+def place(scene: torch.Tensor, grid_shape: tuple[int, int], height_px: float, invert: bool = True) -> torch.Tensor:
+    """Place a ``(..., h, w)`` scene on an ``(..., H, W)`` grid (see :func:`placement_matrices`)."""
+    py, px = placement_matrices(tuple(scene.shape[-2:]), grid_shape, height_px, invert)
+    py, px = py.to(scene.dtype), px.to(scene.dtype)
+    return py @ scene @ px.T
+
+
+def _fast_size(n: int) -> int:
+    """Smallest 2^a 3^b 5^c >= n (FFT-friendly)."""
+    best = 1 << max(0, math.ceil(math.log2(max(n, 1))))
+    a = 1
+    while a < best:
+        b = a
+        while b < best:
+            c = b
+            while c < best:
+                if c >= n:
+                    best = c
+                c *= 5
+            b *= 3
+        a *= 2
+    return best
+
+
+def fft_convolve(image: torch.Tensor, psf: torch.Tensor) -> torch.Tensor:
+    """Linear (zero-padded) convolution of ``(..., H, W)`` images with a centred PSF.
+
+    The PSF's axis is at ``(Hp // 2, Wp // 2)``; the result has the image's
+    shape: ``out[y, x] = sum image[y', x'] psf[y - y' + Hp//2, x - x' + Wp//2]``.
+    """
+    H, W = image.shape[-2:]
+    Hp, Wp = psf.shape[-2:]
+    sh, sw = _fast_size(H + Hp - 1), _fast_size(W + Wp - 1)
+    spec = torch.fft.rfft2(image, s=(sh, sw)) * torch.fft.rfft2(psf, s=(sh, sw))
+    full = torch.fft.irfft2(spec, s=(sh, sw))
+    return full[..., Hp // 2 : Hp // 2 + H, Wp // 2 : Wp // 2 + W]
+
+
+def integrate(image: torch.Tensor, out_shape: tuple[int, int]) -> torch.Tensor:
+    """Pixel integration: average ``(..., H, W)`` over the ``out_shape`` sensor pixels."""
+    H, W = image.shape[-2:]
+    sy = box_matrix(H, out_shape[0]).to(image.dtype)
+    sx = box_matrix(W, out_shape[1]).to(image.dtype)
+    return sy @ image @ sx.T
+
+
+def correlation_tensor(box: torch.Tensor, place_m: torch.Tensor, n_psf: int) -> torch.Tensor:
+    """1-D geometry tensor linking scene pixels to embedding pixels through a PSF offset.
+
+    ``R[a, p, k] = sum_y box[a, y] * place[y - (k - n_psf // 2), p]``: the
+    weight with which PSF sample ``k`` carries scene pixel ``p`` into output
+    pixel ``a`` along one axis.
+
+    Args:
+        box: ``(n_out, n_grid)`` integration matrix (:func:`box_matrix`).
+        place_m: ``(n_grid, n_scene)`` placement matrix.
+        n_psf: PSF length along this axis (its axis at ``n_psf // 2``).
+
+    Returns:
+        ``(n_out, n_scene, n_psf)`` tensor.
+    """
+    n_grid = box.shape[1]
+    c = n_psf // 2
+    # conv1d is a correlation: out[a, p, t] = sum_j boxpad[a, t + j] place[j, p].
+    left = max(0, c)
+    right = max(0, n_psf - 1 - c)
+    inp = F.pad(box[:, None, :], (left, right))  # (n_out, 1, n_grid + n_psf - 1)
+    weight = place_m.T[:, None, :]  # (n_scene, 1, n_grid)
+    out = F.conv1d(inp, weight)  # (n_out, n_scene, n_psf); t = s + left, s = k - c
+    return out[:, :, :n_psf] if out.shape[-1] >= n_psf else F.pad(out, (0, n_psf - out.shape[-1]))
+
+
+def scene_operator(psf: torch.Tensor, ry: torch.Tensor, rx: torch.Tensor) -> torch.Tensor:
+    """The linear map from scene pixels to embedding pixels for a given PSF.
+
+    Args:
+        psf: ``(C, Hp, Wp)`` intensity PSF.
+        ry: ``(a, h, Hp)`` row correlation tensor (:func:`correlation_tensor`).
+        rx: ``(b, w, Wp)`` column correlation tensor.
+
+    Returns:
+        ``(C, a, b, h, w)`` operator ``A`` with
+        ``embedding[c, a, b] = sum_pq A[c, a, b, p, q] scene[c, p, q]``.
+    """
+    t = torch.einsum("phk,ckl->cphl", ry, psf)  # (C, a, h, Wp)
+    return torch.einsum("cphl,bql->cpbhq", t, rx)
+
+
+def apply_operator(op: torch.Tensor, scene: torch.Tensor) -> torch.Tensor:
+    """Apply a ``(C, a, b, h, w)`` operator to ``(B, C or 1, h, w)`` scenes -> ``(B, C, a, b)``."""
+    C, a, b, h, w = op.shape
+    flat = op.reshape(C, a * b, h * w)
+    x = scene.reshape(scene.shape[0], scene.shape[1], h * w)
+    if x.shape[1] == 1:
+        out = torch.einsum("nk,cek->nce", x[:, 0], flat)
+    elif x.shape[1] == C:
+        out = torch.einsum("nck,cek->nce", x, flat)
+    else:
+        raise ConfigError("scene channels", x.shape[1], f"must be 1 or {C} (the PSF's channels)")
+    return out.reshape(scene.shape[0], C, a, b)
+
+
+def snr_sigma(signal: torch.Tensor, snr_db: float) -> torch.Tensor:
+    """Noise standard deviation per example for ``SNR_dB = 10 log10(var(signal) / var(noise))``.
+
+    The variance is taken over all but the batch dimension; an all-constant
+    (e.g. all-black) example gets zero noise, never NaN.
+    """
+    var = signal.flatten(1).var(dim=1, unbiased=False)
+    sigma = torch.sqrt(var.clamp_min(0) * 10.0 ** (-snr_db / 10.0))
+    return sigma.reshape(-1, *([1] * (signal.dim() - 1)))
+
+
+def add_noise(
+    signal: torch.Tensor,
+    snr_db: float | None,
+    model: str = "gaussian",
+    photons: float = 1e4,
+    read_noise: float = 0.0,
+    generator: torch.Generator | None = None,
+) -> torch.Tensor:
+    """Zero-mean sensor noise, added after pixel integration.
+
+    Args:
+        signal: ``(B, ...)`` noise-free measurement (non-negative).
+        snr_db: target SNR in dB (paper A.4) for the ``gaussian`` model;
+            ``None`` turns noise off.
+        model: ``"gaussian"`` (differentiable, variance from the SNR),
+            ``"poisson"`` (photon shot noise: the example's brightest pixel
+            collects ``photons`` photons, plus Gaussian read noise of
+            ``read_noise`` photo-electrons, rescaled back to signal units) or
+            ``"none"``.
+        generator: optional RNG for reproducible draws.
+    """
+    if model == "none" or (model == "gaussian" and snr_db is None):
+        return signal
+    if model == "gaussian":
+        noise = torch.randn(signal.shape, generator=generator, dtype=signal.dtype, device=signal.device)
+        return signal + snr_sigma(signal.detach(), snr_db) * noise
+    if model == "poisson":
+        peak = signal.detach().flatten(1).amax(dim=1).clamp_min(torch.finfo(signal.dtype).tiny)
+        scale = (photons / peak).reshape(-1, *([1] * (signal.dim() - 1)))
+        counts = torch.poisson((signal.detach() * scale).clamp_min(0), generator=generator)
+        if read_noise > 0:
+            counts = counts + read_noise * torch.randn(
+                signal.shape, generator=generator, dtype=signal.dtype, device=signal.device
+            )
+        # Straight-through: noisy values forward, the clean gradient backward.
+        return signal + (counts / scale - signal).detach()
+    raise ConfigError("sensor.noise", model, "one of 'gaussian', 'poisson', 'none'")
+
+
+def quantize(signal: torch.Tensor, bits: int, full_scale: torch.Tensor | float | None = None) -> torch.Tensor:
+    """ADC quantisation to ``bits`` with rounding (straight-through gradient).
+
+    ``full_scale`` defaults to each example's maximum, i.e. an auto-exposed sensor.
+    """
+    levels = 2**bits - 1
+    if full_scale is None:
+        full_scale = signal.detach().flatten(1).amax(dim=1).reshape(-1, *([1] * (signal.dim() - 1)))
+    fs = torch.as_tensor(full_scale, dtype=signal.dtype, device=signal.device).clamp_min(torch.finfo(signal.dtype).tiny)
+    q = torch.round((signal / fs).clamp(0, 1) * levels) / levels * fs
+    return signal + (q - signal).detach()
+
+
+def normalize_psf(psf: torch.Tensor, name: str = "psf") -> torch.Tensor:
+    """Scale a ``(C, H, W)`` intensity PSF so each channel sums to one.
+
+    Raises:
+        PhysicsError: if a channel has no energy or the PSF is not finite.
+    """
+    if not torch.isfinite(psf).all():
+        raise PhysicsError(f"{name}: the PSF has NaN or infinite values")
+    total = psf.sum(dim=(-2, -1), keepdim=True)
+    if (total <= 0).any():
+        raise PhysicsError(f"{name}: the PSF has zero energy (all-zero or fully opaque); nothing reaches the sensor")
+    return psf / total

@@ -1,0 +1,189 @@
+"""Typed, documented, validated settings: the one way optoenc declares a knob.
+
+A plugin's ``Config`` is a dataclass deriving from :class:`Settings` whose
+fields are made with :func:`setting`. Each field carries its help text, its
+SI unit and its allowed range; :func:`describe` turns a ``Config`` class into
+the rows that the CLI listings, the JSON output and the generated settings
+reference print, so documentation and validation share one source.
+
+Example:
+    >>> from dataclasses import dataclass
+    >>> @dataclass
+    ... class Config(Settings):
+    ...     d2: float = setting(4e-3, "mask-to-sensor distance", unit="m", gt=0)
+    >>> Config(d2=-1.0)
+    Traceback (most recent call last):
+    ...
+    optoenc.errors.ConfigError: d2 = -1.0: must be > 0 m
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import typing
+from typing import Any, Iterable
+
+from .errors import ConfigError
+
+__all__ = ["Settings", "setting", "validate", "describe", "to_dict"]
+
+
+def setting(
+    default: Any = dataclasses.MISSING,
+    help: str = "",
+    *,
+    unit: str = "",
+    gt: float | None = None,
+    ge: float | None = None,
+    lt: float | None = None,
+    le: float | None = None,
+    choices: Iterable[Any] | None = None,
+    default_factory: Any = dataclasses.MISSING,
+) -> Any:
+    """A dataclass field with help text, SI unit and allowed range.
+
+    Args:
+        default: default value (use ``default_factory`` for lists).
+        help: one-line description shown in listings and docs.
+        unit: SI unit of the value (``"m"``, ``"dB"``, ``""`` for none).
+        gt, ge, lt, le: bounds (strictly greater, greater or equal, ...).
+            They apply to every element of a tuple or list value.
+        choices: the allowed values, if the setting is an enumeration.
+        default_factory: a callable making the default (mutable defaults).
+    """
+    meta = {
+        "help": help,
+        "unit": unit,
+        "gt": gt,
+        "ge": ge,
+        "lt": lt,
+        "le": le,
+        "choices": tuple(choices) if choices is not None else None,
+    }
+    if default_factory is not dataclasses.MISSING:
+        return dataclasses.field(default_factory=default_factory, metadata=meta)
+    return dataclasses.field(default=default, metadata=meta)
+
+
+def _allowed_text(meta: dict) -> str:
+    unit = f" {meta['unit']}" if meta.get("unit") else ""
+    if meta.get("choices") is not None:
+        return "one of " + ", ".join(repr(c) for c in meta["choices"])
+    parts = []
+    for key, op in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<=")):
+        if meta.get(key) is not None:
+            parts.append(f"{op} {meta[key]:g}{unit}")
+    return "must be " + " and ".join(parts) if parts else ""
+
+
+def _check_scalar(name: str, value: Any, meta: dict) -> None:
+    if meta.get("choices") is not None:
+        if value not in meta["choices"]:
+            raise ConfigError(name, value, _allowed_text(meta))
+        return
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return
+    bounds = [meta.get(k) for k in ("gt", "ge", "lt", "le")]
+    if all(b is None for b in bounds):
+        if isinstance(value, float) and math.isnan(value):
+            raise ConfigError(name, value, "must be a number, not NaN")
+        return
+    ok = not (isinstance(value, float) and math.isnan(value))
+    gt, ge, lt, le = bounds
+    ok = ok and (gt is None or value > gt) and (ge is None or value >= ge)
+    ok = ok and (lt is None or value < lt) and (le is None or value <= le)
+    if not ok:
+        raise ConfigError(name, value, _allowed_text(meta))
+
+
+def validate(config: Any) -> None:
+    """Check every field of a settings dataclass against its declared range.
+
+    Raises:
+        ConfigError: naming the field, the value and what is allowed.
+    """
+    for f in dataclasses.fields(config):
+        value = getattr(config, f.name)
+        if value is None:
+            continue
+        if isinstance(value, (tuple, list)):
+            for v in value:
+                if v is not None:
+                    _check_scalar(f.name, v, f.metadata)
+        elif dataclasses.is_dataclass(value):
+            try:
+                validate(value)
+            except ConfigError as err:
+                raise err.with_prefix(f.name) from None
+        else:
+            _check_scalar(f.name, value, f.metadata)
+
+
+@dataclasses.dataclass
+class Settings:
+    """Base of every settings dataclass: validated on construction."""
+
+    def __post_init__(self) -> None:
+        validate(self)
+
+    def replace(self, **changes: Any) -> "Settings":
+        """A validated copy with some fields changed."""
+        return dataclasses.replace(self, **changes)
+
+
+def _type_name(tp: Any) -> str:
+    if isinstance(tp, str):
+        return tp
+    origin = typing.get_origin(tp)
+    if origin is None:
+        return getattr(tp, "__name__", str(tp))
+    args = ", ".join(_type_name(a) for a in typing.get_args(tp))
+    name = getattr(origin, "__name__", str(origin))
+    if name in ("Union", "UnionType"):
+        return " | ".join(_type_name(a) for a in typing.get_args(tp))
+    return f"{name}[{args}]"
+
+
+def describe(config_cls: type) -> list[dict[str, Any]]:
+    """Rows describing each setting of a settings dataclass.
+
+    Returns:
+        One dict per field: ``name``, ``type``, ``default``, ``unit``,
+        ``help`` and ``allowed`` (the range or choices, in words).
+    """
+    hints = typing.get_type_hints(config_cls)
+    rows = []
+    for f in dataclasses.fields(config_cls):
+        if f.default is not dataclasses.MISSING:
+            default = f.default
+        elif f.default_factory is not dataclasses.MISSING:  # type: ignore[misc]
+            default = f.default_factory()  # type: ignore[misc]
+        else:
+            default = None
+        if dataclasses.is_dataclass(default):
+            default = to_dict(default)
+        rows.append(
+            {
+                "name": f.name,
+                "type": _type_name(hints.get(f.name, f.type)),
+                "default": list(default) if isinstance(default, tuple) else default,
+                "unit": f.metadata.get("unit", ""),
+                "help": f.metadata.get("help", ""),
+                "allowed": _allowed_text(dict(f.metadata)),
+            }
+        )
+    return rows
+
+
+def to_dict(config: Any) -> dict[str, Any]:
+    """Plain, YAML/JSON-friendly dict of a settings dataclass (tuples as lists)."""
+
+    def plain(v: Any) -> Any:
+        if dataclasses.is_dataclass(v):
+            return {f.name: plain(getattr(v, f.name)) for f in dataclasses.fields(v)}
+        if isinstance(v, (tuple, list)):
+            return [plain(x) for x in v]
+        return v
+
+    return plain(config)
