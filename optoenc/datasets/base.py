@@ -1,0 +1,73 @@
+"""`Dataset`: the base every dataset plugin derives from, and its `Splits` result."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, ClassVar, NamedTuple
+
+import torch
+
+from ..encoders.base import _coerce
+from ..settings import Settings
+
+__all__ = ["DatasetConfig", "Dataset", "Split", "Splits"]
+
+
+@dataclass
+class DatasetConfig(Settings):
+    """Settings every dataset has (none yet)."""
+
+
+class Split(NamedTuple):
+    """One split: ``images`` float32 ``(N, C, h, w)`` in [0, 1], ``labels`` int64 ``(N,)``."""
+
+    images: torch.Tensor
+    labels: torch.Tensor
+
+
+@dataclass(frozen=True)
+class Splits:
+    """Train, validation and test splits of a dataset, in memory.
+
+    The validation split is carved from the training data, so model selection
+    never sees the test split (REFERENCE §3).
+    """
+
+    train: Split
+    val: Split
+    test: Split
+    num_classes: int
+
+    def sizes(self) -> dict[str, int]:
+        """Number of examples per split."""
+        return {k: len(getattr(self, k).labels) for k in ("train", "val", "test")}
+
+
+class Dataset:
+    """Base class: a labelled image dataset loaded into :class:`Splits`.
+
+    Subclasses set ``name`` (the registry name), ``Config`` (a dataclass
+    deriving from :class:`DatasetConfig`) and implement :meth:`load`.
+
+    Args:
+        config: the dataset's ``Config`` (or a mapping of its fields).
+    """
+
+    name: ClassVar[str] = ""
+    Config: ClassVar[type] = DatasetConfig
+    num_classes: ClassVar[int] = 0
+
+    def __init__(self, config: Any = None):
+        self.config = _coerce(self.Config, config, "dataset")
+
+    def load(self) -> Splits:
+        """The train / val / test splits."""
+        raise NotImplementedError
+
+    @classmethod
+    def summary(cls) -> str:
+        """First line of the class docstring (shown in listings)."""
+        return (cls.__doc__ or "").strip().splitlines()[0] if cls.__doc__ else ""
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.config})"
