@@ -92,17 +92,20 @@ class PluginHost:
             self._fail(info, err)
             return info
         snapshot = {k: set(r.names()) for k, r in self.registries.items()}
-        try:
-            for hook_name, kind in hookspecs.HOOKS.items():
-                for impl in getattr(self.pm.hook, hook_name).get_hookimpls():
-                    if impl.plugin_name == name:
+        failure = None
+        for hook_name, kind in hookspecs.HOOKS.items():  # one failing hook does not skip the others
+            for impl in getattr(self.pm.hook, hook_name).get_hookimpls():
+                if impl.plugin_name == name:
+                    try:
                         impl.function(registry=Registrar(self.registries[kind], name))
-        except Exception as err:
-            self._fail(info, err)
-            return info
+                    except Exception as err:
+                        failure = failure or err
         info.registered = {
             k: sorted(set(r.names()) - snapshot[k]) for k, r in self.registries.items() if set(r.names()) - snapshot[k]
         }
+        if failure is not None:
+            self._fail(info, failure)
+            return info
         self.plugins.append(info)
         return info
 

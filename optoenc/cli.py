@@ -1,0 +1,260 @@
+"""``optoenc`` command line: train, evaluate, list plugins, draw PSFs, benchmark.
+
+Bad input (unknown key or name, value out of range, corrupt file) prints one
+line ``optoenc: error: ...`` and exits with code 2, without a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Sequence
+
+from . import __version__
+from .errors import ConfigError, OptoencError
+
+__all__ = ["main"]
+
+KIND_COMMANDS = {"encoders": "encoder", "decoders": "decoder", "augmentations": "augmentation", "datasets": "dataset"}
+
+
+def _split_overrides(extra: Sequence[str]) -> list[str]:
+    """``--a.b=v`` / ``--a.b v`` / ``a.b=v`` tokens -> ``["a.b=v", ...]``."""
+    out, i, extra = [], 0, list(extra)
+    while i < len(extra):
+        tok = extra[i]
+        key = tok[2:] if tok.startswith("--") else tok
+        if "=" in key:
+            out.append(key)
+        elif tok.startswith("--") and "." in key and i + 1 < len(extra):
+            out.append(f"{key}={extra[i + 1]}")
+            i += 1
+        else:
+            raise ConfigError(key or tok, "", "not an option; settings are given as --section.key=value")
+        i += 1
+    return out
+
+
+def _run_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", action="append", default=[], metavar="YAML", help="run config file (repeatable; later wins)")
+    p.add_argument("--encoder", help="optical encoder (see `optoenc encoders`)")
+    p.add_argument("--decoder", help="digital decoder (see `optoenc decoders`)")
+    p.add_argument("--dataset", help="dataset (see `optoenc datasets`)")
+    p.add_argument("--augment", help="comma-separated augmentations (see `optoenc augmentations`); '' for none")
+    p.add_argument("--seed", type=int, help="run seed")
+    p.add_argument("--print-config", action="store_true", help="print the resolved config and exit")
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="optoenc",
+        description="Design optical encoders end to end. Settings: --section.key=value (e.g. --encoder.d2=4e-3).",
+    )
+    p.add_argument("--version", action="store_true", help="print versions of optoenc and its plugins")
+    sub = p.add_subparsers(dest="command")
+    f = sub.add_parser("fit", help="train an encoder and decoder; writes a run directory")
+    _run_options(f)
+    f.add_argument("--resume", metavar="RUN_DIR", help="continue a run from its last checkpoint")
+    for stage in ("validate", "test"):
+        s = sub.add_parser(stage, help=f"{stage} a trained run (best checkpoint)")
+        s.add_argument("--run", required=True, metavar="RUN_DIR", help="run directory written by `optoenc fit`")
+        s.add_argument("--which", default="best", choices=("best", "last"), help="checkpoint")
+    pl = sub.add_parser("plugins", help="list installed plugins and what they register")
+    pl.add_argument("--json", action="store_true")
+    for cmd, kind in KIND_COMMANDS.items():
+        s = sub.add_parser(cmd, help=f"list {cmd}, or show one {kind}'s settings")
+        s.add_argument("pattern", nargs="?", help=f"a {kind} name (its settings) or a glob pattern")
+        s.add_argument("--json", action="store_true")
+    ps = sub.add_parser("psf", help="render an encoder's PSF (and mask) to PNG")
+    _run_options(ps)
+    ps.add_argument("--out", required=True, metavar="FILE.png")
+    si = sub.add_parser("simulate", help="write example measurements at each paper embedding size")
+    _run_options(si)
+    si.add_argument("--out", required=True, metavar="DIR")
+    si.add_argument("--count", type=int, default=8, help="digits per picture")
+    b = sub.add_parser("bench", help="benchmarks (speed and accuracy, side by side)")
+    b.add_argument("what", nargs="?", default="optics", choices=("optics",), help="which benchmark")
+    b.add_argument("--out", metavar="DIR", help="also write CSV/PNG here")
+    return p
+
+
+def _compose(args, extra):
+    from .config import compose
+
+    names = {k: getattr(args, k, None) for k in ("encoder", "decoder", "dataset")}
+    files = [_load_yaml(c) for c in getattr(args, "config", [])]
+    augment = None if getattr(args, "augment", None) is None else [a.strip() for a in args.augment.split(",")]
+    return compose(files, _split_overrides(extra), names, augment, getattr(args, "seed", None))
+
+
+def _load_yaml(path: str):
+    from omegaconf import OmegaConf
+
+    if not Path(path).is_file():
+        raise ConfigError("--config", path, "file not found")
+    try:
+        return OmegaConf.load(path)
+    except Exception as err:
+        raise ConfigError("--config", path, f"not valid YAML ({str(err).splitlines()[0]})") from None
+
+
+def _quiet_lightning() -> None:
+    import logging
+    import warnings
+
+    for name in ("lightning", "lightning.pytorch", "lightning.fabric", "lightning_utilities"):
+        logging.getLogger(name).setLevel(logging.WARNING)
+    warnings.filterwarnings("ignore", message=".*does not have many workers.*")
+    warnings.filterwarnings("ignore", message=".*LeafSpec.*")
+    warnings.filterwarnings("ignore", message=".*exists and is not empty.*")
+
+
+def cmd_fit(args, extra) -> int:
+    from omegaconf import OmegaConf
+
+    from .rundir import RUN_FILES, new_run_dir
+    from .training import fit
+
+    if args.resume:
+        run_dir = Path(args.resume)
+        cfg = run_dir / RUN_FILES["config"]
+        if not cfg.is_file():
+            raise ConfigError("--resume", args.resume, f"not a run directory (no {RUN_FILES['config']})")
+        args.config = [str(cfg)] + list(args.config)
+    run = _compose(args, extra)
+    if args.print_config:
+        print(run.to_yaml(), end="")
+        return 0
+    if not args.resume:
+        stem = f"{run.names['encoder']}-{run.names['decoder']}"
+        run_dir = new_run_dir(run.output.root, run.output.name, stem)
+    _quiet_lightning()
+    print(f"run directory: {run_dir}", file=sys.stderr)
+    summary = fit(run, run_dir, resume=bool(args.resume))
+    line = f"val_acc {summary['val_acc']:.4f}  test_acc {summary['test_acc']:.4f}"
+    if "verify" in summary:
+        line += f"  test_acc@{summary['verify']['preset']} {summary['verify']['test_acc']:.4f}"
+    print(f"{line}  ({summary['wall_time_s']:.0f} s)  -> {run_dir}")
+    _ = OmegaConf
+    return 0
+
+
+def cmd_evaluate(args, extra) -> int:
+    from .rundir import RUN_FILES
+    from .training import evaluate
+
+    run_dir = Path(args.run)
+    cfg = run_dir / RUN_FILES["config"]
+    if not cfg.is_file():
+        raise ConfigError("--run", args.run, f"not a run directory (no {RUN_FILES['config']})")
+    from .config import compose
+
+    run = compose([_load_yaml(str(cfg))], _split_overrides(extra))
+    _quiet_lightning()
+    metrics = evaluate(run, run_dir, args.command, args.which)
+    print("  ".join(f"{k} {v:.4f}" for k, v in sorted(metrics.items())))
+    return 0
+
+
+def cmd_list(args, extra) -> int:
+    from . import listing
+
+    kind = KIND_COMMANDS[args.command]
+    print(listing.show(kind, args.pattern, as_json=args.json))
+    return 0
+
+
+def cmd_plugins(args, extra) -> int:
+    from . import listing
+
+    print(listing.plugins(as_json=args.json))
+    return 0
+
+
+def cmd_psf(args, extra) -> int:
+    from . import pictures
+    from .config import build_encoder
+
+    run = _compose(args, extra)
+    enc = build_encoder(run)
+    out = Path(args.out)
+    pictures.save_psf(out, enc.psf(), enc.geometry.spacing, f"{enc.name} PSF")
+    if hasattr(enc, "mask"):
+        pictures.save_mask(out.with_name(out.stem + "_mask.png"), enc.mask(), f"{enc.name} mask")
+    print(out)
+    return 0
+
+
+def cmd_simulate(args, extra) -> int:
+    import dataclasses
+
+    from . import devices, pictures
+    from .config import build_encoder
+    from .plugins import get_registry
+
+    run = _compose(args, extra)
+    splits = get_registry("dataset").get(run.names["dataset"])(run.dataset).load()
+    x, y = splits.test[0][: args.count], splits.test[1][: args.count]
+    out = Path(args.out)
+    for emb_shape in devices.EMBEDDINGS:
+        run.sensor = dataclasses.replace(run.sensor, embedding=emb_shape)
+        enc = build_encoder(run)
+        emb = enc(x)
+        path = pictures.save_measurements(out / f"{enc.name}_{emb_shape[0]}x{emb_shape[1]}.png", x, emb, y.tolist())
+        print(path)
+    return 0
+
+
+def cmd_bench(args, extra) -> int:
+    from . import bench_optics
+
+    rows = bench_optics.run()
+    print(bench_optics.format_table(rows))
+    return 0
+
+
+def cmd_version() -> int:
+    from .plugins import get_host
+
+    print(f"optoenc {__version__}")
+    for info in get_host().plugins:
+        state = "ok" if info.ok else f"FAILED: {info.error}"
+        print(f"  plugin {info.name} {info.distribution} {info.version} ({state})")
+    return 0
+
+
+COMMANDS = {
+    "fit": cmd_fit,
+    "validate": cmd_evaluate,
+    "test": cmd_evaluate,
+    "plugins": cmd_plugins,
+    "psf": cmd_psf,
+    "simulate": cmd_simulate,
+    "bench": cmd_bench,
+    **{k: cmd_list for k in KIND_COMMANDS},
+}
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = _parser()
+    args, extra = parser.parse_known_args(argv)
+    try:
+        if args.version:
+            return cmd_version()
+        if not args.command:
+            parser.print_help()
+            return 0
+        if extra and args.command not in ("fit", "validate", "test", "psf", "simulate"):
+            parser.error(f"unrecognized arguments: {' '.join(extra)}")
+        return COMMANDS[args.command](args, extra)
+    except OptoencError as err:
+        print(f"optoenc: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("optoenc: interrupted; resume with `optoenc fit --resume RUN_DIR`", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

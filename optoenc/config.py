@@ -1,0 +1,232 @@
+"""Run configuration: one strict omegaconf tree built from the registries.
+
+A run config has one section per settings group::
+
+    seed: 0
+    encoder: {name: learned_slm, d2: 0.004, ...}   # the encoder's Config fields
+    decoder: {name: fcnn, hidden: 800, ...}
+    dataset: {name: mnist, val_size: 5000, ...}
+    augment: {shift: {...}, rotate: {...}}         # enabled augmentations, in order
+    scene / sensor / fidelity / trainer / output: {...}
+
+The schema of each plugin section comes from the chosen plugin's ``Config``
+dataclass, so a misspelled key fails with its full path and its valid
+neighbours, and every value is validated against its declared range.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+from dataclasses import dataclass
+from typing import Any, Optional
+
+from omegaconf import DictConfig, OmegaConf
+from omegaconf import errors as oc_errors
+
+from .errors import ConfigError
+from .geometry import FidelityConfig, SceneConfig, SensorConfig
+from .plugins import get_registry
+from .settings import Settings, setting
+
+__all__ = [
+    "TrainerConfig",
+    "OutputConfig",
+    "RunConfig",
+    "DEFAULTS",
+    "compose",
+    "build_encoder",
+    "to_yaml",
+]
+
+
+@dataclass
+class TrainerConfig(Settings):
+    """Optimisation and loop settings (REFERENCE §3 defaults)."""
+
+    max_epochs: int = setting(50, "training epochs", ge=1)
+    batch_size: int = setting(200, "examples per optimiser step", ge=1)
+    lr: float = setting(1e-3, "Adam learning rate (encoder and decoder)", gt=0)
+    encoder_lr: Optional[float] = setting(None, "learning rate of the encoder's parameters (null: lr)", gt=0)
+    precompute: bool = setting(True, "encode the dataset once for fixed, non-augmented encoders (noise still drawn per batch)")
+    eval_batch_size: int = setting(1000, "examples per batch when encoding or evaluating", ge=1)
+    progress: bool = setting(True, "show progress bars")
+    threads: Optional[int] = setting(None, "torch CPU threads (null: torch's default)", ge=1)
+    accelerator: str = setting("cpu", "lightning accelerator", choices=("cpu", "gpu", "auto"))
+    verify_preset: Optional[str] = setting(
+        "reference", "after training, re-evaluate the final encoder at this fidelity preset (null: skip)"
+    )
+
+
+@dataclass
+class OutputConfig(Settings):
+    """Where runs are written."""
+
+    root: str = setting("runs", "folder holding the run directories")
+    name: Optional[str] = setting(None, "run directory name (null: <encoder>-<decoder>-<timestamp>)")
+    examples: int = setting(8, "example measurements drawn as pictures", ge=0)
+
+
+#: The one table of default plugin names.
+DEFAULTS = {"encoder": "learned_slm", "decoder": "fcnn", "dataset": "mnist"}
+
+#: Sections whose schema is fixed (not chosen by a plugin name).
+_FIXED = {
+    "scene": SceneConfig,
+    "sensor": SensorConfig,
+    "fidelity": FidelityConfig,
+    "trainer": TrainerConfig,
+    "output": OutputConfig,
+}
+_PLUGIN_SECTIONS = ("encoder", "decoder", "dataset")
+
+
+@dataclass
+class RunConfig:
+    """A resolved run: names plus validated settings objects."""
+
+    seed: int
+    names: dict[str, str]
+    encoder: Any
+    decoder: Any
+    dataset: Any
+    augment: dict[str, Any]
+    scene: SceneConfig
+    sensor: SensorConfig
+    fidelity: FidelityConfig
+    trainer: TrainerConfig
+    output: OutputConfig
+    tree: DictConfig
+
+    def to_yaml(self) -> str:
+        return to_yaml(self.tree)
+
+
+def to_yaml(tree: DictConfig) -> str:
+    return OmegaConf.to_yaml(tree, resolve=True)
+
+
+def _node(cls: type, name: str | None = None) -> DictConfig:
+    node = OmegaConf.structured(cls)
+    if name is not None:
+        OmegaConf.set_struct(node, False)
+        node["name"] = name
+        OmegaConf.set_struct(node, True)
+    return node
+
+
+def _keys_at(tree: DictConfig, path: str) -> list[str]:
+    node: Any = tree
+    for part in path.split(".")[:-1]:
+        if isinstance(node, DictConfig) and part in node:
+            node = node[part]
+        else:
+            break
+    return [str(k) for k in node.keys()] if isinstance(node, DictConfig) else []
+
+
+def _translate(err: Exception, tree: DictConfig) -> ConfigError:
+    key = getattr(err, "full_key", None) or "config"
+    if isinstance(err, oc_errors.ConfigKeyError):
+        leaf = key.split(".")[-1]
+        known = _keys_at(tree, key)
+        close = difflib.get_close_matches(leaf, known, n=3, cutoff=0.5)
+        hint = f"did you mean {', '.join(close)}? " if close else ""
+        return ConfigError(key, "?", f"unknown setting; {hint}valid keys here: {', '.join(known)}")
+    msg = str(err).splitlines()[0]
+    return ConfigError(key, "?", msg)
+
+
+def _names_from(user: DictConfig, cli_names: dict[str, str | None], section: str) -> str:
+    if cli_names.get(section):
+        return str(cli_names[section])
+    node = user.get(section) if isinstance(user, DictConfig) else None
+    if isinstance(node, DictConfig) and node.get("name"):
+        return str(node["name"])
+    return DEFAULTS[section]
+
+
+def compose(
+    file_configs: list[DictConfig] | None = None,
+    overrides: list[str] | None = None,
+    names: dict[str, str | None] | None = None,
+    augment: list[str] | None = None,
+    seed: int | None = None,
+) -> RunConfig:
+    """Build and validate a run configuration.
+
+    Args:
+        file_configs: parsed YAML configs, merged in order (later wins).
+        overrides: dotted ``key=value`` strings (``encoder.d2=4e-3``).
+        names: plugin names chosen on the command line (``encoder``,
+            ``decoder``, ``dataset``); they override the files.
+        augment: augmentation names to enable (overrides the files).
+        seed: the run seed (overrides the files).
+
+    Raises:
+        ConfigError: unknown key (with the valid neighbours), bad type or
+            value out of range; PluginError: unknown plugin name.
+    """
+    user = OmegaConf.merge(*(file_configs or [OmegaConf.create({})]))
+    dotlist = OmegaConf.from_dotlist(list(overrides or []))
+    user = OmegaConf.merge(user, dotlist)
+    names = dict(names or {})
+    chosen = {s: _names_from(user, names, s) for s in _PLUGIN_SECTIONS}
+    classes = {s: get_registry(s).get(chosen[s]) for s in _PLUGIN_SECTIONS}
+
+    aug_reg = get_registry("augmentation")
+    if augment is not None:
+        aug_names = [a for a in augment if a]
+    else:
+        node = user.get("augment")
+        aug_names = [str(k) for k in node.keys()] if isinstance(node, DictConfig) else []
+    aug_classes = {a: aug_reg.get(a) for a in aug_names}
+
+    schema = OmegaConf.create({"seed": 0})
+    for s in _PLUGIN_SECTIONS:
+        schema[s] = _node(classes[s].Config, chosen[s])
+    schema["augment"] = OmegaConf.create({a: _node(c.Config) for a, c in aug_classes.items()})
+    for s, cls in _FIXED.items():
+        schema[s] = _node(cls)
+    OmegaConf.set_struct(schema, True)
+
+    # Names were resolved above: drop them from the user tree so a file's name
+    # cannot contradict the command line.
+    user = OmegaConf.to_container(user, resolve=True) if isinstance(user, DictConfig) else {}
+    for s in _PLUGIN_SECTIONS:
+        if isinstance(user.get(s), dict):
+            user[s].pop("name", None)
+    if augment is not None and isinstance(user.get("augment"), dict):
+        user["augment"] = {k: v for k, v in user["augment"].items() if k in aug_classes}
+    if isinstance(user.get("augment"), dict):
+        user["augment"] = {k: (v or {}) for k, v in user["augment"].items()}
+    try:
+        tree = OmegaConf.merge(schema, user)
+    except (oc_errors.ConfigKeyError, oc_errors.ValidationError, oc_errors.ConfigTypeError) as err:
+        raise _translate(err, schema) from None
+    if seed is not None:
+        tree.seed = int(seed)
+
+    def build(section: str, cls: type, node: DictConfig) -> Any:
+        data = OmegaConf.to_container(node, resolve=True)
+        data.pop("name", None)
+        data = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
+        try:
+            return cls(**data)
+        except ConfigError as err:
+            raise err.with_prefix(section) from None
+
+    objs = {s: build(s, classes[s].Config, tree[s]) for s in _PLUGIN_SECTIONS}
+    objs.update({s: build(s, cls, tree[s]) for s, cls in _FIXED.items()})
+    augs = {a: build(f"augment.{a}", c.Config, tree.augment[a]) for a, c in aug_classes.items()}
+    return RunConfig(seed=int(tree.seed), names=chosen, augment=augs, tree=tree, **objs)
+
+
+def build_encoder(run: RunConfig, fidelity: FidelityConfig | None = None):
+    """Instantiate the run's encoder (optionally at another fidelity)."""
+    cls = get_registry("encoder").get(run.names["encoder"])
+    return cls(run.encoder, scene=run.scene, sensor=run.sensor, fidelity=fidelity or run.fidelity)
+
+
+def config_fields(cls: type) -> list[str]:
+    return [f.name for f in dataclasses.fields(cls)]

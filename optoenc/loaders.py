@@ -1,0 +1,60 @@
+"""In-memory data loaders with epoch-seeded shuffling, and dataset encoding."""
+
+from __future__ import annotations
+
+from typing import Iterator
+
+import torch
+from torch.utils.data import DataLoader, Sampler, TensorDataset
+
+__all__ = ["EpochSampler", "make_loader", "encode"]
+
+
+class EpochSampler(Sampler[int]):
+    """Shuffles with a permutation that depends only on (seed, epoch).
+
+    Lightning calls :meth:`set_epoch` before every epoch, so a run resumed at
+    epoch ``k`` sees the same order as an uninterrupted run.
+    """
+
+    def __init__(self, n: int, seed: int):
+        self.n, self.seed, self.epoch = int(n), int(seed), 0
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = int(epoch)
+
+    def __iter__(self) -> Iterator[int]:
+        g = torch.Generator().manual_seed(self.seed * 100_003 + self.epoch)
+        return iter(torch.randperm(self.n, generator=g).tolist())
+
+    def __len__(self) -> int:
+        return self.n
+
+
+def make_loader(x: torch.Tensor, y: torch.Tensor, batch_size: int, shuffle: bool, seed: int = 0) -> DataLoader:
+    """A loader over in-memory tensors (no worker processes: the data is already in RAM)."""
+    ds = TensorDataset(x, y)
+    sampler = EpochSampler(len(ds), seed) if shuffle else None
+    return DataLoader(ds, batch_size=batch_size, sampler=sampler, shuffle=False, num_workers=0)
+
+
+@torch.no_grad()
+def encode(encoder, images: torch.Tensor, batch_size: int = 1000, progress=None) -> torch.Tensor:
+    """Noise-free embeddings of ``images`` (N, C, h, w), in large batches.
+
+    Args:
+        progress: optional callable ``(n_done)`` for a progress bar.
+    """
+    was_training = encoder.training
+    encoder.eval()
+    out = []
+    try:
+        for i in range(0, len(images), batch_size):
+            out.append(encoder.measure(images[i : i + batch_size]))
+            if progress is not None:
+                progress(len(out[-1]))
+    finally:
+        encoder.train(was_training)
+    if not out:
+        return torch.empty(0, *encoder.output_shape)
+    return torch.cat(out)

@@ -1,0 +1,121 @@
+"""The LightningModule: augmentation -> optical encoder -> sensor noise -> decoder."""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import lightning as L
+import torch
+import torch.nn.functional as F
+from torch import nn
+from torchmetrics.classification import MulticlassAccuracy
+
+from .decoders import Decoder
+from .encoders.base import OpticalEncoder
+
+__all__ = ["EncoderClassifier", "SEED_STRIDE"]
+
+#: Every epoch (and every evaluation pass) starts from a seed derived from the
+#: run seed, so a resumed run draws exactly what an uninterrupted one would.
+SEED_STRIDE = 1_000_003
+
+
+class EncoderClassifier(L.LightningModule):
+    """Trains an optical encoder and a digital decoder together.
+
+    Args:
+        encoder: the optical encoder (its parameters are trained if it has any).
+        decoder: classifier on the embedding, emitting logits.
+        augmentations: object-plane transforms applied to every training batch.
+        canvas: canvas geometry for augmentations (from :mod:`optoenc.augment`);
+            ``None`` when there are none.
+        lr: Adam learning rate; ``encoder_lr`` for the encoder (default ``lr``).
+        seed: run seed (per-epoch reseeding, see :data:`SEED_STRIDE`).
+        precomputed: batches hold noise-free embeddings, not scenes (fixed
+            encoders encode the dataset once); noise is still drawn per batch.
+        augment_eval: apply the augmentations at validation and test too
+            (the paper's robustness protocol: same distribution for both).
+    """
+
+    def __init__(
+        self,
+        encoder: OpticalEncoder,
+        decoder: Decoder,
+        augmentations: Sequence[nn.Module] = (),
+        canvas=None,
+        lr: float = 1e-3,
+        encoder_lr: float | None = None,
+        seed: int = 0,
+        precomputed: bool = False,
+        augment_eval: bool = True,
+    ):
+        super().__init__()
+        self.encoder = encoder
+        self.decoder = decoder
+        self.augmentations = nn.ModuleList(augmentations)
+        self.canvas = canvas
+        self.lr, self.encoder_lr, self.seed = lr, encoder_lr or lr, int(seed)
+        self.precomputed = precomputed
+        self.augment_eval = augment_eval
+        n = decoder.num_classes
+        self.train_acc = MulticlassAccuracy(num_classes=n, average="micro")
+        self.val_acc = MulticlassAccuracy(num_classes=n, average="micro")
+        self.test_acc = MulticlassAccuracy(num_classes=n, average="micro")
+
+    # --------------------------------------------------------------- forward
+    def clean_embedding(self, x: torch.Tensor, augment: bool) -> torch.Tensor:
+        """Noise-free embedding of a batch (scenes, or precomputed embeddings)."""
+        if self.precomputed:
+            return x
+        if len(self.augmentations) and augment:
+            from .augment import to_canvas
+
+            canvas = to_canvas(x, self.canvas)
+            height = self.encoder.scene_config.object_height
+            for aug in self.augmentations:
+                canvas = aug(canvas, self.canvas, height)
+            return self.encoder.measure(canvas, height=self.canvas.height)
+        return self.encoder.measure(x)
+
+    def forward(self, x: torch.Tensor, augment: bool = False) -> torch.Tensor:
+        """Logits for a batch of scenes (noise included)."""
+        emb = self.encoder.add_sensor_noise(self.clean_embedding(x, augment))
+        return self.decoder(emb)
+
+    # --------------------------------------------------------------- steps
+    def _step(self, batch, metric, stage: str, augment: bool) -> torch.Tensor:
+        x, y = batch
+        logits = self(x, augment=augment)
+        loss = F.cross_entropy(logits, y)
+        metric.update(logits.detach(), y)
+        on_step = stage == "train"
+        self.log(f"{stage}_loss", loss, on_step=on_step, on_epoch=True, prog_bar=stage != "test", batch_size=len(y))
+        self.log(f"{stage}_acc", metric, on_step=False, on_epoch=True, prog_bar=True, batch_size=len(y))
+        return loss
+
+    def training_step(self, batch, batch_idx):
+        return self._step(batch, self.train_acc, "train", augment=True)
+
+    def validation_step(self, batch, batch_idx):
+        self._step(batch, self.val_acc, "val", augment=self.augment_eval)
+
+    def test_step(self, batch, batch_idx):
+        self._step(batch, self.test_acc, "test", augment=self.augment_eval)
+
+    # --------------------------------------------------------------- seeding
+    def on_train_epoch_start(self) -> None:
+        torch.manual_seed(self.seed + SEED_STRIDE * (self.current_epoch + 1))
+
+    def on_validation_epoch_start(self) -> None:
+        torch.manual_seed(self.seed + 17)
+
+    def on_test_epoch_start(self) -> None:
+        torch.manual_seed(self.seed + 29)
+
+    # --------------------------------------------------------------- optimiser
+    def configure_optimizers(self):
+        groups = [{"params": list(self.decoder.parameters()), "lr": self.lr}]
+        enc = [p for p in self.encoder.parameters() if p.requires_grad]
+        if enc:
+            groups.append({"params": enc, "lr": self.encoder_lr})
+        return torch.optim.Adam(groups)

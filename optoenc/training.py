@@ -1,0 +1,235 @@
+"""Running a configuration: build the parts, train, select on validation, test once.
+
+Used by the CLI (``optoenc fit | validate | test``) and usable from Python::
+
+    run = optoenc.config.compose(names={"encoder": "diffuser"}, overrides=["trainer.max_epochs=1"])
+    summary = optoenc.training.fit(run, run_dir)
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from . import pictures
+from .config import RunConfig, build_encoder
+from .geometry import FidelityConfig
+from .loaders import encode, make_loader
+from .module import EncoderClassifier
+from .plugins import get_registry
+from .rundir import RUN_FILES, atomic_write_text, write_json
+from .settings import to_dict
+
+__all__ = ["Parts", "build", "fit", "evaluate", "checkpoint_path"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class Parts:
+    """Everything a run trains and evaluates."""
+
+    module: EncoderClassifier
+    splits: Any
+    loaders: dict[str, Any]
+    precomputed: bool
+
+
+def _canvas(run: RunConfig, encoder, scene_shape):
+    from .augment import canvas_geometry
+
+    m = encoder.magnification
+    fov_h, fov_w = encoder.sensor.size[0] / m, encoder.sensor.size[1] / m
+    return canvas_geometry(
+        run.scene.object_height, tuple(scene_shape), fov_h, fov_w, min_pitch=encoder.geometry.spacing[0] / m
+    )
+
+
+def build(run: RunConfig, progress: bool = False) -> Parts:
+    """Instantiate dataset, encoder, decoder, augmentations and loaders for ``run``."""
+    if run.trainer.threads:
+        torch.set_num_threads(run.trainer.threads)
+    torch.manual_seed(run.seed)
+    splits = get_registry("dataset").get(run.names["dataset"])(run.dataset).load()
+    encoder = build_encoder(run)
+    augs = [get_registry("augmentation").get(a)(cfg) for a, cfg in run.augment.items()]
+    decoder = get_registry("decoder").get(run.names["decoder"])(
+        run.decoder, in_shape=encoder.output_shape, num_classes=splits.num_classes, learnable_encoder=encoder.learnable
+    )
+    precomputed = run.trainer.precompute and not encoder.learnable and not augs
+    bs, ebs = run.trainer.batch_size, run.trainer.eval_batch_size
+    data = {"train": splits.train, "val": splits.val, "test": splits.test}
+    if precomputed:
+        data = {k: (_encode(encoder, x, ebs, progress, k), y) for k, (x, y) in data.items()}
+    canvas = _canvas(run, encoder, splits.train[0].shape[-2:]) if augs else None
+    module = EncoderClassifier(
+        encoder,
+        decoder,
+        augs,
+        canvas=canvas,
+        lr=run.trainer.lr,
+        encoder_lr=run.trainer.encoder_lr,
+        seed=run.seed,
+        precomputed=precomputed,
+    )
+    if decoder.norm_kind == "standardize":
+        sample = data["train"][0][:5000]
+        with torch.no_grad():
+            emb = sample if precomputed else encode(encoder, sample, ebs)
+        decoder.set_statistics(emb.mean().item(), emb.std().item())
+    loaders = {
+        "train": make_loader(*data["train"], bs, shuffle=True, seed=run.seed),
+        "val": make_loader(*data["val"], ebs, shuffle=False),
+        "test": make_loader(*data["test"], ebs, shuffle=False),
+    }
+    return Parts(module, splits, loaders, precomputed)
+
+
+def _encode(encoder, images, batch_size, progress, split):
+    if not progress:
+        return encode(encoder, images, batch_size)
+    from tqdm.auto import tqdm
+
+    with tqdm(total=len(images), desc=f"encoding {split}", unit="img", leave=False) as bar:
+        return encode(encoder, images, batch_size, progress=bar.update)
+
+
+def checkpoint_path(run_dir: Path, which: str = "last") -> Path:
+    """``which`` in ``last`` (resume) or ``best`` (selected on validation)."""
+    return Path(run_dir) / RUN_FILES["checkpoints"] / f"{which}.ckpt"
+
+
+def _trainer(run: RunConfig, run_dir: Path, max_epochs: int | None = None, logger: bool = True):
+    import lightning as L
+    from lightning.pytorch.callbacks import ModelCheckpoint
+    from lightning.pytorch.loggers import CSVLogger
+
+    callbacks = [
+        ModelCheckpoint(
+            dirpath=run_dir / RUN_FILES["checkpoints"],
+            filename="best",
+            monitor="val_acc",
+            mode="max",
+            save_last=True,
+            save_top_k=1,
+            enable_version_counter=False,
+        )
+    ]
+    return L.Trainer(
+        max_epochs=max_epochs or run.trainer.max_epochs,
+        accelerator=run.trainer.accelerator,
+        devices=1,
+        logger=CSVLogger(save_dir=run_dir, name="", version="") if logger else False,
+        callbacks=callbacks,
+        enable_progress_bar=run.trainer.progress,
+        enable_model_summary=False,
+        num_sanity_val_steps=0,
+        log_every_n_steps=10,
+        default_root_dir=run_dir,
+    )
+
+
+def _pictures(parts: Parts, run: RunConfig, run_dir: Path, tag: str) -> None:
+    enc = parts.module.encoder
+    pic = run_dir / RUN_FILES["pictures"]
+    with torch.no_grad():
+        pictures.save_psf(pic / f"psf_{tag}.png", enc.psf(), enc.geometry.spacing, f"{enc.name} PSF ({tag})")
+        if hasattr(enc, "mask"):
+            pictures.save_mask(pic / f"mask_{tag}.png", enc.mask(), f"{enc.name} mask ({tag})")
+        n = run.output.examples
+        if n and tag != "initial":
+            x, y = parts.splits.test[0][:n], parts.splits.test[1][:n]
+            emb = enc.add_sensor_noise(enc.measure(x.to(torch.float32)))
+            pictures.save_measurements(pic / "measurements.png", x, emb, y.tolist())
+
+
+def fit(run: RunConfig, run_dir: Path, resume: bool = False) -> dict[str, Any]:
+    """Train ``run`` in ``run_dir`` (resuming from its last checkpoint if ``resume``).
+
+    Returns:
+        The summary written to ``summary.json``.
+    """
+    run_dir = Path(run_dir)
+    start = time.time()
+    atomic_write_text(run_dir / RUN_FILES["config"], run.to_yaml())
+    parts = build(run, progress=run.trainer.progress)
+    if not resume:
+        _pictures(parts, run, run_dir, "initial")
+    trainer = _trainer(run, run_dir)
+    ckpt = checkpoint_path(run_dir, "last")
+    trainer.fit(
+        parts.module,
+        parts.loaders["train"],
+        parts.loaders["val"],
+        ckpt_path=str(ckpt) if resume and ckpt.exists() else None,
+    )
+    best = checkpoint_path(run_dir, "best")
+    best_val = float(trainer.checkpoint_callback.best_model_score or float("nan"))
+    test = trainer.test(parts.module, parts.loaders["test"], ckpt_path=str(best) if best.exists() else None, verbose=False)
+    _pictures(parts, run, run_dir, "final")
+    pictures.save_curves(run_dir / RUN_FILES["pictures"] / "curves.png", run_dir / RUN_FILES["metrics"])
+    summary: dict[str, Any] = {
+        "names": run.names,
+        "seed": run.seed,
+        "epochs": run.trainer.max_epochs,
+        "best_epoch": _best_epoch(trainer),
+        "val_acc": best_val,
+        "test_acc": float(test[0]["test_acc"]) if test else float("nan"),
+        "fidelity": run.fidelity.resolved(),
+        "wall_time_s": round(time.time() - start, 2),
+        "encoder": to_dict(run.encoder),
+        "scene": to_dict(run.scene),
+        "sensor": to_dict(run.sensor),
+        "precomputed_embeddings": parts.precomputed,
+    }
+    if run.trainer.verify_preset and run.trainer.verify_preset != run.fidelity.preset:
+        summary["verify"] = verify(parts, run, run.trainer.verify_preset)
+    write_json(run_dir / RUN_FILES["summary"], summary)
+    return summary
+
+
+def _best_epoch(trainer) -> int | None:
+    path = trainer.checkpoint_callback.best_model_path
+    if not path:
+        return None
+    try:
+        return int(torch.load(path, map_location="cpu", weights_only=False)["epoch"])
+    except Exception:  # pragma: no cover - informative only
+        return None
+
+
+@torch.no_grad()
+def verify(parts: Parts, run: RunConfig, preset: str) -> dict[str, Any]:
+    """Test accuracy of the trained encoder and decoder re-simulated at ``preset`` fidelity.
+
+    The encoder's learned parameters are copied into a fresh encoder built at
+    that preset, so a reported number never rests only on an approximation.
+    """
+    module = parts.module
+    ref = build_encoder(run, fidelity=FidelityConfig(preset=preset))
+    ref.load_state_dict(module.encoder.state_dict())
+    ref.eval()
+    module.eval()
+    x, y = parts.splits.test
+    torch.manual_seed(run.seed + 29)
+    correct = 0
+    for i in range(0, len(x), run.trainer.eval_batch_size):
+        xb = x[i : i + run.trainer.eval_batch_size]
+        emb = ref.add_sensor_noise(ref.measure(xb))
+        correct += int((module.decoder(emb).argmax(1) == y[i : i + len(xb)]).sum())
+    return {"preset": preset, "test_acc": correct / max(len(x), 1)}
+
+
+def evaluate(run: RunConfig, run_dir: Path, stage: str = "test", which: str = "best") -> dict[str, float]:
+    """Validate or test a trained run from its checkpoint."""
+    parts = build(run, progress=run.trainer.progress)
+    trainer = _trainer(run, Path(run_dir), logger=False)
+    ckpt = checkpoint_path(run_dir, which)
+    fn = trainer.test if stage == "test" else trainer.validate
+    out = fn(parts.module, parts.loaders[stage if stage == "test" else "val"], ckpt_path=str(ckpt), verbose=False)
+    return {k: float(v) for k, v in (out[0] if out else {}).items()}
