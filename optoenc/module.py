@@ -103,14 +103,17 @@ class EncoderClassifier(L.LightningModule):
         self._step(batch, self.test_acc, "test", augment=self.augment_eval)
 
     # --------------------------------------------------------------- seeding
-    def on_train_epoch_start(self) -> None:
-        torch.manual_seed(self.seed + SEED_STRIDE * (self.current_epoch + 1))
+    # Each batch draws its noise and augmentations from a seed derived from
+    # (run seed, stage, epoch, batch): a resumed run draws exactly what an
+    # uninterrupted one would, whatever else consumed random numbers.
+    def on_train_batch_start(self, batch, batch_idx) -> None:
+        torch.manual_seed(self.seed + SEED_STRIDE * (self.current_epoch + 1) + 7 * batch_idx)
 
-    def on_validation_epoch_start(self) -> None:
-        torch.manual_seed(self.seed + 17)
+    def on_validation_batch_start(self, batch, batch_idx, dataloader_idx: int = 0) -> None:
+        torch.manual_seed(self.seed + 17 + 7 * batch_idx)
 
-    def on_test_epoch_start(self) -> None:
-        torch.manual_seed(self.seed + 29)
+    def on_test_batch_start(self, batch, batch_idx, dataloader_idx: int = 0) -> None:
+        torch.manual_seed(self.seed + 29 + 7 * batch_idx)
 
     # --------------------------------------------------------------- optimiser
     def configure_optimizers(self):

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import csv
 import io
 from pathlib import Path
 from typing import Sequence
@@ -99,24 +98,19 @@ def save_measurements(path: str | Path, images: torch.Tensor, embeddings: torch.
 
 
 def save_curves(path: str | Path, metrics_csv: str | Path) -> Path | None:
-    """Loss and accuracy per epoch from a Lightning ``metrics.csv``."""
-    rows = list(csv.DictReader(open(metrics_csv))) if Path(metrics_csv).exists() else []
-    series: dict[str, dict[int, float]] = {}
-    for r in rows:
-        ep = r.get("epoch")
-        for k, v in r.items():
-            if k.endswith("_epoch") or k in ("val_acc", "val_loss", "train_acc"):
-                if v not in ("", None) and ep not in ("", None):
-                    series.setdefault(k.replace("_epoch", ""), {})[int(float(ep))] = float(v)
-    if not series:
+    """Loss and accuracy per epoch from a run's ``metrics.csv``."""
+    from .callbacks import read_metrics
+
+    rows = read_metrics(metrics_csv)
+    if not rows:
         return None
     plt, fig = _figure((8, 3.2))
+    epochs = [int(r["epoch"]) + 1 for r in rows]
     for j, kind in enumerate(("loss", "acc")):
         ax = fig.add_subplot(1, 2, j + 1)
-        for k, s in sorted(series.items()):
-            if k.endswith(kind):
-                xs = sorted(s)
-                ax.plot([x + 1 for x in xs], [s[x] for x in xs], marker="o", label=k)
+        for stage in ("train", "val"):
+            ys = [float(r[f"{stage}_{kind}"]) if r.get(f"{stage}_{kind}") else float("nan") for r in rows]
+            ax.plot(epochs, ys, marker="o", label=f"{stage} {kind}")
         ax.set_xlabel("epoch")
         ax.set_ylabel(kind)
         ax.legend(fontsize=8)

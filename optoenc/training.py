@@ -104,10 +104,11 @@ def checkpoint_path(run_dir: Path, which: str = "last") -> Path:
     return Path(run_dir) / RUN_FILES["checkpoints"] / f"{which}.ckpt"
 
 
-def _trainer(run: RunConfig, run_dir: Path, max_epochs: int | None = None, logger: bool = True):
+def _trainer(run: RunConfig, run_dir: Path, logger: bool = True, extra_callbacks=()):
     import lightning as L
     from lightning.pytorch.callbacks import ModelCheckpoint
-    from lightning.pytorch.loggers import CSVLogger
+
+    from .callbacks import EpochMetrics
 
     callbacks = [
         ModelCheckpoint(
@@ -118,18 +119,21 @@ def _trainer(run: RunConfig, run_dir: Path, max_epochs: int | None = None, logge
             save_last=True,
             save_top_k=1,
             enable_version_counter=False,
-        )
+            save_on_train_epoch_end=True,  # after validation: a resumed run restarts at an epoch boundary
+        ),
+        *extra_callbacks,
     ]
+    if logger:
+        callbacks.append(EpochMetrics(run_dir / RUN_FILES["metrics"]))
     return L.Trainer(
-        max_epochs=max_epochs or run.trainer.max_epochs,
+        max_epochs=run.trainer.max_epochs,
         accelerator=run.trainer.accelerator,
         devices=1,
-        logger=CSVLogger(save_dir=run_dir, name="", version="") if logger else False,
+        logger=False,
         callbacks=callbacks,
         enable_progress_bar=run.trainer.progress,
         enable_model_summary=False,
         num_sanity_val_steps=0,
-        log_every_n_steps=10,
         default_root_dir=run_dir,
     )
 
@@ -148,8 +152,11 @@ def _pictures(parts: Parts, run: RunConfig, run_dir: Path, tag: str) -> None:
             pictures.save_measurements(pic / "measurements.png", x, emb, y.tolist())
 
 
-def fit(run: RunConfig, run_dir: Path, resume: bool = False) -> dict[str, Any]:
+def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> dict[str, Any]:
     """Train ``run`` in ``run_dir`` (resuming from its last checkpoint if ``resume``).
+
+    Args:
+        callbacks: extra Lightning callbacks (e.g. early stopping, or a test's interrupter).
 
     Returns:
         The summary written to ``summary.json``.
@@ -160,7 +167,7 @@ def fit(run: RunConfig, run_dir: Path, resume: bool = False) -> dict[str, Any]:
     parts = build(run, progress=run.trainer.progress)
     if not resume:
         _pictures(parts, run, run_dir, "initial")
-    trainer = _trainer(run, run_dir)
+    trainer = _trainer(run, run_dir, extra_callbacks=callbacks)
     ckpt = checkpoint_path(run_dir, "last")
     trainer.fit(
         parts.module,
