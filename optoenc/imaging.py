@@ -258,8 +258,10 @@ def add_noise(
         noise = torch.randn(signal.shape, generator=generator, dtype=signal.dtype, device=signal.device)
         return signal + snr_sigma(signal.detach(), snr_db) * noise
     if model == "poisson":
-        peak = signal.detach().flatten(1).amax(dim=1).clamp_min(torch.finfo(signal.dtype).tiny)
-        scale = (photons / peak).reshape(-1, *([1] * (signal.dim() - 1)))
+        peak = signal.detach().flatten(1).amax(dim=1)
+        # A dark example (peak 0) collects no photons: scale 1 keeps it exactly zero.
+        scale = torch.where(peak > 0, photons / peak.clamp_min(torch.finfo(signal.dtype).tiny), torch.ones_like(peak))
+        scale = scale.reshape(-1, *([1] * (signal.dim() - 1)))
         counts = torch.poisson((signal.detach() * scale).clamp_min(0), generator=generator)
         if read_noise > 0:
             counts = counts + read_noise * torch.randn(

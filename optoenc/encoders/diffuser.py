@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Optional
 
 import torch
 
 from .. import psf_files
+from ..errors import ConfigError
 from ..settings import setting
 from .base import EncoderConfig, OpticalEncoder
 
@@ -23,6 +25,11 @@ class DiffuserConfig(EncoderConfig):
     background: Optional[float] = setting(
         None, "background level subtracted from the raw PSF, in file counts; null: mean of the dark corners", ge=0
     )
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.psf_path is not None and not Path(self.psf_path).is_file():
+            raise ConfigError("psf_path", self.psf_path, "file not found")
 
 
 class Diffuser(OpticalEncoder):
@@ -41,8 +48,6 @@ class Diffuser(OpticalEncoder):
         raw = psf_files.read_psf(self.psf_path)
         clean = psf_files.subtract_background(raw, self.config.background)
         if not (clean > 0).any():
-            from ..errors import ConfigError
-
             raise ConfigError("encoder.psf_path", self.psf_path, "PSF is all zero after background subtraction")
         return psf_files.resample_area(clean, self.geometry.grid).to(self.optics_dtype)
 

@@ -1,0 +1,163 @@
+"""The shared imaging steps: analytic references, invariants and extremes."""
+
+from __future__ import annotations
+
+import warnings
+
+import pytest
+import torch
+import torch.nn.functional as F
+
+from optoenc import imaging as im
+
+DT = torch.float64
+
+
+def brute_convolve(image: torch.Tensor, psf: torch.Tensor) -> torch.Tensor:
+    """Direct double loop of the documented convolution convention."""
+    H, W = image.shape
+    Hp, Wp = psf.shape
+    out = torch.zeros(H, W, dtype=image.dtype)
+    for y in range(H):
+        for x in range(W):
+            for yy in range(H):
+                for xx in range(W):
+                    i, j = y - yy + Hp // 2, x - xx + Wp // 2
+                    if 0 <= i < Hp and 0 <= j < Wp:
+                        out[y, x] += image[yy, xx] * psf[i, j]
+    return out
+
+
+@pytest.mark.parametrize("shape,pshape", [((5, 6), (5, 6)), ((4, 7), (3, 5)), ((6, 6), (7, 4))])
+def test_fft_convolve_matches_direct_sum(shape, pshape):
+    g = torch.Generator().manual_seed(0)
+    img, psf = torch.rand(shape, generator=g, dtype=DT), torch.rand(pshape, generator=g, dtype=DT)
+    # float64 FFT round trip: errors ~1e-15 relative; 1e-12 leaves margin for the sum.
+    torch.testing.assert_close(im.fft_convolve(img, psf), brute_convolve(img, psf), rtol=1e-12, atol=1e-12)
+
+
+def test_centred_impulse_is_identity_for_odd_and_even_sizes():
+    for H, W in [(6, 8), (7, 9), (1, 5)]:
+        img = torch.rand(H, W, dtype=DT)
+        delta = torch.zeros(H, W, dtype=DT)
+        delta[H // 2, W // 2] = 1
+        torch.testing.assert_close(im.fft_convolve(img, delta), img, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "grid,psf_shape,scene,emb,height",
+    [((48, 64), (48, 64), (7, 5), (6, 8), 20.3), ((45, 61), (45, 61), (6, 6), (5, 7), 17.0), ((32, 32), (17, 21), (4, 4), (4, 4), 10.0)],
+)
+def test_operator_equals_fine_grid_pipeline(grid, psf_shape, scene, emb, height):
+    g = torch.Generator().manual_seed(1)
+    psf = torch.rand(2, *psf_shape, generator=g, dtype=DT)
+    x = torch.rand(3, 2, *scene, generator=g, dtype=DT)
+    ref = im.integrate(im.fft_convolve(im.place(x, grid, height), psf), emb)
+    py, px = im.placement_matrices(scene, grid, height)
+    ry = im.correlation_tensor(im.box_matrix(grid[0], emb[0]), py, psf_shape[0])
+    rx = im.correlation_tensor(im.box_matrix(grid[1], emb[1]), px, psf_shape[1])
+    out = im.apply_operator(im.scene_operator(psf, ry, rx), x)
+    # Two exact float64 evaluations of the same linear map: rounding only (~1e-14 of values ~50).
+    torch.testing.assert_close(out, ref, rtol=1e-11, atol=1e-11)
+
+
+def test_box_integration_equals_average_pooling_when_the_grid_divides():
+    x = torch.rand(2, 1, 48, 64, dtype=DT)
+    for emb in [(24, 32), (12, 16), (6, 8), (3, 4), (1, 1), (48, 64)]:
+        ref = F.avg_pool2d(x, (48 // emb[0], 64 // emb[1]))
+        torch.testing.assert_close(im.integrate(x, emb), ref, rtol=1e-13, atol=1e-13)
+
+
+def test_box_integration_with_fractional_cells_preserves_the_mean():
+    x = torch.rand(1, 1, 38, 50, dtype=DT)  # 38 / 5 and 50 / 7 are not integers
+    out = im.integrate(x, (5, 7))
+    # Every output averages exact fractional areas, so the mean is preserved exactly (rounding only).
+    torch.testing.assert_close(out.mean(), x.mean(), rtol=1e-13, atol=0)
+
+
+def test_placement_conserves_integrated_intensity_and_scales_with_area():
+    scene = torch.rand(28, 28, dtype=DT)
+    for h in [3.5, 28.0, 97.8]:
+        placed = im.place(scene, (128, 160), h)
+        # Area resampling: each scene pixel covers (h/28)^2 grid pixels.
+        torch.testing.assert_close(placed.sum(), scene.sum() * (h / 28) ** 2, rtol=1e-12, atol=0)
+
+
+def test_placement_inverts_the_image():
+    scene = torch.zeros(4, 4, dtype=DT)
+    scene[0, 0] = 1  # top-left in the object plane
+    placed = im.place(scene, (8, 8), 4.0)
+    # the 4 x 4 scene covers grid rows/cols 2..5; its top-left pixel lands bottom-right (M < 0)
+    assert placed[5, 5] == 1 and placed[2, 2] == 0
+
+
+def test_object_smaller_than_a_pixel_is_finite_and_keeps_energy():
+    placed = im.place(torch.ones(28, 28, dtype=DT), (16, 16), 0.3)
+    assert torch.isfinite(placed).all()
+    torch.testing.assert_close(placed.sum(), torch.tensor(0.09, dtype=DT), rtol=1e-12, atol=0)
+
+
+def test_object_larger_than_the_field_of_view_is_cropped_with_a_warning():
+    with pytest.warns(UserWarning, match="cropped"):
+        placed = im.place(torch.ones(28, 28, dtype=DT), (16, 16), 40.0)
+    torch.testing.assert_close(placed, torch.ones(16, 16, dtype=DT))
+
+
+@pytest.mark.parametrize("snr_db", [-10.0, 0.0, 20.0, 40.0, 100.0])
+def test_noise_hits_the_target_snr_and_is_zero_mean(snr_db):
+    torch.manual_seed(0)
+    signal = torch.rand(64, 1, 24, 32, dtype=DT) + 0.5
+    noisy = im.add_noise(signal, snr_db)
+    noise = noisy - signal
+    measured = 10 * torch.log10(signal.flatten(1).var(1, unbiased=False) / noise.flatten(1).var(1, unbiased=False))
+    # 768 samples per example: the variance estimate has ~5 % relative spread, ~0.2 dB; 64 examples averaged.
+    assert abs(measured.mean().item() - snr_db) < 0.1
+    # zero mean: |mean| below 4 standard errors of the mean of 64*768 samples.
+    sigma = noise.std().item()
+    assert abs(noise.mean().item()) < 4 * sigma / (64 * 768) ** 0.5
+
+
+def test_noise_extremes_are_finite():
+    black = torch.zeros(3, 1, 4, 4)
+    for model in ("gaussian", "poisson"):
+        out = im.add_noise(black, 40.0, model)
+        assert torch.isfinite(out).all() and (out == 0).all()  # zero variance: zero noise
+    x = torch.rand(3, 1, 4, 4)
+    assert torch.equal(im.add_noise(x, None), x)
+    assert torch.equal(im.add_noise(x, 40.0, "none"), x)
+    assert torch.isfinite(im.add_noise(x, 1000.0)).all()
+
+
+def test_noise_is_differentiable_and_poisson_is_straight_through():
+    x = torch.rand(2, 1, 4, 4, requires_grad=True)
+    im.add_noise(x, 10.0).sum().backward()
+    torch.testing.assert_close(x.grad, torch.ones_like(x))
+    x.grad = None
+    im.add_noise(x, None, "poisson", photons=100).sum().backward()
+    torch.testing.assert_close(x.grad, torch.ones_like(x))
+
+
+def test_quantize_rounds_to_levels():
+    x = torch.tensor([[0.0, 0.26, 0.5, 1.0]])
+    q = im.quantize(x, 2, full_scale=1.0)  # levels 0, 1/3, 2/3, 1
+    torch.testing.assert_close(q, torch.tensor([[0.0, 1 / 3, 2 / 3, 1.0]]))
+    assert torch.isfinite(im.quantize(torch.zeros(1, 4), 8)).all()
+
+
+def test_zero_energy_psf_is_a_clear_error():
+    from optoenc.errors import PhysicsError
+
+    with pytest.raises(PhysicsError, match="zero energy"):
+        im.normalize_psf(torch.zeros(1, 4, 4))
+    with pytest.raises(PhysicsError, match="NaN"):
+        im.normalize_psf(torch.full((1, 4, 4), float("nan")))
+
+
+def test_embedding_larger_than_the_grid_is_rejected():
+    from optoenc.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="embedding"):
+        im.box_matrix(16, 17)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert im.box_matrix(16, 16).shape == (16, 16)
