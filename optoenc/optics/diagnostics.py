@@ -27,7 +27,8 @@ import warnings
 from dataclasses import dataclass, field
 
 from ..errors import ConfigError, PhysicsError
-from .propagation import METHODS, as_real, as_spacing, padded_shape
+from ._common import as_real, as_spacing
+from .propagation import METHODS, padded_shape
 from .sources import source_phase_step
 
 __all__ = ["SamplingReport", "SamplingWarning", "sampling_report", "check_sampling"]

@@ -16,7 +16,7 @@ from collections.abc import Callable
 import torch
 
 from ..errors import ConfigError
-from .propagation import as_real, as_spacing
+from ._common import as_real, as_spacing
 from .sources import _pair, coordinates
 
 __all__ = ["thin_lens", "circular_aperture", "rect_aperture", "cell_mask", "phase_mask"]

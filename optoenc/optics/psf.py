@@ -11,7 +11,8 @@ import torch
 
 from ..errors import ConfigError, PhysicsError
 from .diagnostics import check_sampling
-from .propagation import CACHE, as_real, as_spacing, propagate, tensor_key
+from ._common import CACHE, as_real, as_spacing, tensor_key
+from .propagation import propagate
 from .sources import point_source
 from .spectrum import Spectrum
 

@@ -13,7 +13,7 @@ import math
 import torch
 
 from ..errors import ConfigError
-from .propagation import as_real, as_spacing
+from ._common import as_real, as_spacing
 
 __all__ = ["coordinates", "plane_wave", "point_source", "gaussian_beam", "source_phase_step"]
 

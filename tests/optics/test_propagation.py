@@ -7,7 +7,7 @@ import torch
 
 import optoenc.optics as o
 from optoenc.errors import ConfigError
-from optoenc.optics.propagation import CACHE
+from optoenc.optics._common import CACHE
 
 LAM = 550e-9
 
