@@ -7,9 +7,13 @@ from .hookspecs import hookimpl
 
 @hookimpl
 def optoenc_register_encoders(registry):
+    from .encoders.coded_aperture import CodedAperture
     from .encoders.diffuser import Diffuser
+    from .encoders.lens import Lens
+    from .encoders.phase_mask import LearnedPhaseMask, PhaseMask
+    from .encoders.slm import FixedSLM, LearnedSLM
 
-    for cls in (Diffuser,):
+    for cls in (Lens, CodedAperture, Diffuser, FixedSLM, LearnedSLM, PhaseMask, LearnedPhaseMask):
         registry.add(cls)
 
 

@@ -1,0 +1,165 @@
+"""`lens`: a thin lens imaging the scene onto the sensor (the paper's lensed baseline).
+
+Model: a thin lens of focal length ``f = 1 / (1 / focus + 1 / d2)`` (7.39 mm
+for a lens focused at 40 cm with the sensor 7.53 mm behind it, REFERENCE §2)
+and a circular aperture of diameter ``D = f / N``. A point at the scene
+distance ``d1`` images to ``v = 1 / (1 / f - 1 / d1)``; the sensor sits at
+``d2``. The intensity PSF at wavelength ``lambda`` is
+
+* in focus (``v = d2``): the Airy pattern ``(2 J1(x) / x)^2`` with
+  ``x = pi D r / (lambda d2)`` (first zero at ``1.22 lambda d2 / D``);
+* defocused: the geometric blur disk of diameter ``b = D |d2 - v| / v``
+  convolved with that Airy pattern (a geometric-optics approximation).
+
+The Airy disk (~1 um at F1.2) is far smaller than a grid pixel (~12 um), so
+the PSF is never simulated at full sensor resolution: the analytic pattern is
+supersampled on a small window around the axis (sub-samples of a quarter of
+``lambda N``, a window holding all but ~0.5 % of the energy plus the blur
+disk) and integrated over each grid pixel, then placed at ``(H // 2, W // 2)``.
+
+Alternatively ``psf_path`` loads a measured lens PSF spanning the sensor
+(PNG, TIFF or NPY, axis at its centre), area-resampled onto the grid.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+import torch
+from scipy.signal import fftconvolve
+from scipy.special import j1
+
+from .. import devices, psf_files
+from ..errors import ConfigError, PhysicsError
+from ..settings import setting
+from . import constants as K
+from .base import EncoderConfig, OpticalEncoder
+
+__all__ = ["LensConfig", "Lens", "airy_pixel_psf"]
+
+#: Largest supersampled window (per axis) used for the analytic PSF.
+_MAX_FINE = 1024
+#: Window radius in units of lambda * N: the Airy energy beyond it is ~2 / (pi^2 * 60 / 1.22 ...) < 0.5 %.
+_TAIL = 60.0
+
+
+def airy_pixel_psf(
+    wavelength: float, working_f_number: float, spacing: tuple[float, float], blur_diameter: float = 0.0
+) -> np.ndarray:
+    """Pixel-integrated PSF of an aberration-free circular pupil, on a small centred window.
+
+    Args:
+        wavelength: metres.
+        working_f_number: ``d2 / D`` (image distance over pupil diameter).
+        spacing: ``(dy, dx)`` grid pixel pitch, metres.
+        blur_diameter: diameter of the geometric defocus disk at the sensor, metres.
+
+    Returns:
+        ``(2R + 1, 2R + 1)`` float64 array summing to one, centred on pixel ``(R, R)``.
+    """
+    lam_n = wavelength * working_f_number
+    pix = min(spacing)
+    radius = blur_diameter / 2 + _TAIL * lam_n
+    R = int(math.ceil(radius / pix)) + 1
+    s = max(1, int(math.ceil(pix / (lam_n / 4))))
+    s = max(1, min(s, _MAX_FINE // (2 * R + 1)))
+    n = 2 * R + 1
+    sub = (np.arange(s) + 0.5) / s - 0.5
+    ys = ((np.arange(n) - R)[:, None] + sub[None, :]).reshape(-1) * spacing[0]
+    xs = ((np.arange(n) - R)[:, None] + sub[None, :]).reshape(-1) * spacing[1]
+    rho = np.hypot(ys[:, None], xs[None, :])
+    x = np.pi * rho / lam_n
+    with np.errstate(invalid="ignore", divide="ignore"):
+        airy = np.where(x > 1e-8, (2 * j1(x) / np.where(x > 1e-8, x, 1.0)) ** 2, 1.0)
+    fine_step = min(spacing) / s
+    if blur_diameter > fine_step:
+        disk = np.clip((blur_diameter / 2 - rho) / fine_step + 0.5, 0.0, 1.0)
+        airy = np.clip(fftconvolve(airy, disk / disk.sum(), mode="same"), 0.0, None)
+    out = airy.reshape(n, s, n, s).sum(axis=(1, 3))
+    return out / out.sum()
+
+
+@dataclass
+class LensConfig(EncoderConfig):
+    d2: float = setting(K.LENS_D2, "lens-to-sensor distance d2", unit="m", gt=0)
+    focus_distance: Optional[float] = setting(
+        None, "object distance the lens is focused at (sets f); null: the scene distance d1", unit="m", gt=0
+    )
+    f_number: float = setting(K.LENS_F_NUMBER, "f-number N = f / D of the circular aperture", gt=0)
+    psf_path: Optional[str] = setting(
+        None, "measured lens PSF (PNG, TIFF or NPY) spanning the sensor; null: the diffraction-limited thin lens"
+    )
+    background: Optional[float] = setting(
+        None, "background subtracted from a measured PSF, in file counts; null: mean of the dark corners", ge=0
+    )
+
+
+class Lens(OpticalEncoder):
+    """Thin lens (6 mm wide-angle class) focused at 40 cm, 7.53 mm from the sensor; diffraction-limited PSF."""
+
+    name = "lens"
+    Config = LensConfig
+    learnable = False
+    linear = True
+
+    def __init__(self, config=None, **kw):
+        super().__init__(config, **kw)
+        path = self.config.psf_path
+        if path is not None and not Path(path).is_file():
+            raise ConfigError("encoder.psf_path", path, "file not found")
+        # Empty buffer: follows .to(device) so the PSF is returned on the module's device.
+        self.register_buffer("_anchor", torch.zeros(0, dtype=self.optics_dtype), persistent=False)
+
+    @property
+    def focus_distance(self) -> float:
+        """Object distance in focus, metres."""
+        f = self.config.focus_distance
+        return float(self.scene_config.distance if f is None else f)
+
+    @property
+    def focal_length(self) -> float:
+        """Thin-lens focal length focusing ``focus_distance`` onto ``d2``, metres."""
+        return 1.0 / (1.0 / self.focus_distance + 1.0 / self.d2)
+
+    @property
+    def aperture_diameter(self) -> float:
+        """Pupil diameter ``D = f / N``, metres."""
+        return self.focal_length / self.config.f_number
+
+    @property
+    def blur_diameter(self) -> float:
+        """Diameter of the geometric defocus disk at the sensor for a point at ``d1``, metres."""
+        f, d1 = self.focal_length, self.scene_config.distance
+        if d1 <= f:
+            raise PhysicsError(f"lens: the scene distance {d1} m is inside the focal length {f:.4g} m; no real image")
+        v = 1.0 / (1.0 / f - 1.0 / d1)
+        return self.aperture_diameter * abs(self.d2 - v) / v
+
+    def compute_psf(self) -> torch.Tensor:
+        H, W = self.geometry.grid
+        if self.config.psf_path is not None:
+            raw = psf_files.read_psf(self.config.psf_path, key="encoder.psf_path")
+            clean = psf_files.subtract_background(raw, self.config.background)
+            if not (clean > 0).any():
+                raise ConfigError(
+                    "encoder.psf_path", self.config.psf_path, "PSF is all zero after background subtraction"
+                )
+            return psf_files.resample_area(clean, (H, W)).to(self._anchor.device, self.optics_dtype)
+        n_w = self.d2 / self.aperture_diameter
+        blur = self.blur_diameter
+        out = torch.zeros(3, H, W, dtype=torch.float64)
+        for c, lam in enumerate(devices.WAVELENGTHS_RGB):
+            win = torch.from_numpy(airy_pixel_psf(lam, n_w, self.geometry.spacing, blur))
+            R = win.shape[0] // 2
+            ry, rx = min(R, H // 2, H - 1 - H // 2), min(R, W // 2, W - 1 - W // 2)
+            rows, cols = slice(H // 2 - ry, H // 2 + ry + 1), slice(W // 2 - rx, W // 2 + rx + 1)
+            out[c, rows, cols] = win[R - ry : R + ry + 1, R - rx : R + rx + 1]
+        return out.to(self._anchor.device, self.optics_dtype)
+
+    def cache_token(self) -> str:
+        """What, beyond the config, determines this encoder's PSF: a measured file's contents, if any."""
+        return psf_files.file_digest(self.config.psf_path) if self.config.psf_path else ""

@@ -1,0 +1,181 @@
+"""`fixed_slm` and `learned_slm`: an ST7735R LCD used as a programmable amplitude mask.
+
+Model (paper A.5, A.5.2): a point source at ``d1`` gives a spherical wave at
+the LCD; the LCD multiplies it by a real amplitude mask ``M_c(x, y)`` per
+wavelength (ideal one-hot colour filters: at 640 / 550 / 460 nm only the R /
+G / B sub-pixel rows transmit, each with its amplitude ``w_k`` in ``[0, 1]``,
+deadspace opaque, see :mod:`optoenc.encoders.slm_panel`); the field
+propagates ``d2`` to the sensor with the band-limited angular spectrum and the
+intensity PSF is ``|U_c|^2``, all three wavelengths in one batched FFT.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+import torch
+from torch import nn
+
+from ..errors import ConfigError
+from ..settings import setting
+from . import constants as K
+from . import slm_panel
+from .base import EncoderConfig
+from .coded_aperture import MaskEncoder
+
+__all__ = ["SLMConfig", "FixedSLM", "LearnedSLMConfig", "LearnedSLM", "panel_image"]
+
+
+@dataclass
+class SLMConfig(EncoderConfig):
+    d2: float = setting(K.SLM_D2, "LCD-to-sensor distance d2", unit="m", gt=0)
+    aperture: float = setting(
+        K.SLM_APERTURE, "fraction of the sub-pixels over the sensor left open, per axis", gt=0, le=1
+    )
+    active_subpixels: Optional[tuple[int, int]] = setting(
+        None, "explicit (rows, columns) of the centred active sub-pixel block; null: from the aperture", ge=1
+    )
+    pattern_path: Optional[str] = setting(
+        None, "sub-pixel amplitudes in [0, 1]: .npy of the active block (e.g. 51 x 22) or the panel (384 x 160); "
+        "null: seeded uniform random"
+    )
+    seed: int = setting(0, "seed of the random pattern", ge=0)
+    quantize: str = setting("none", "display levels: 'none', '8bit' or 'rgb565' (R 5, G 6, B 5 bits)",
+                            choices=("none", "8bit", "rgb565"))
+
+
+@dataclass
+class LearnedSLMConfig(SLMConfig):
+    learn_d2: bool = setting(False, "also learn d2 (d2 = d2_init * exp(s), s learned)")
+
+
+class _SLMBase(MaskEncoder):
+    """Shared layout and PSF of the LCD encoders."""
+
+    Config = SLMConfig
+
+    def __init__(self, config=None, **kw):
+        super().__init__(config, **kw)
+        self.block = slm_panel.active_block(self.sensor.size, self.config.aperture, self.config.active_subpixels)
+        levels = slm_panel.level_counts(self.config.quantize, self.block)
+        self._levels = None if levels is None else torch.from_numpy(levels)[:, None]
+
+    def initial_pattern(self) -> torch.Tensor:
+        """``(rows, cols)`` float64 block amplitudes from ``pattern_path`` or the seeded random draw."""
+        shape = self.block.shape
+        path = self.config.pattern_path
+        if path is None:
+            return torch.from_numpy(np.random.default_rng(self.config.seed).uniform(0.0, 1.0, shape))
+        if Path(path).suffix.lower() != ".npy" or not Path(path).is_file():
+            raise ConfigError("encoder.pattern_path", path, "file not found (must be an existing .npy file)")
+        try:
+            arr = np.asarray(np.load(path, allow_pickle=False), dtype=np.float64)
+        except Exception as err:  # unreadable file: report the setting, one line
+            raise ConfigError("encoder.pattern_path", path, f"unreadable ({type(err).__name__}: {err})") from None
+        b = self.block
+        if arr.shape == K.ST7735R_SUBPIXELS:
+            arr = arr[b.row0 : b.row0 + b.rows, b.col0 : b.col0 + b.cols]
+        elif arr.shape != shape:
+            raise ConfigError("encoder.pattern_path", path,
+                              f"shape {arr.shape} must be the active block {shape} or the panel {K.ST7735R_SUBPIXELS}")
+        if not np.isfinite(arr).all() or arr.min() < 0 or arr.max() > 1:
+            raise ConfigError("encoder.pattern_path", path, "values must be finite and within [0, 1]")
+        return torch.from_numpy(arr.copy())
+
+    def _quantize(self, w: torch.Tensor) -> torch.Tensor:
+        """Round to the display levels; straight-through (identity) gradient."""
+        if self._levels is None:
+            return w
+        lv = self._levels.to(w.device, w.dtype)
+        return w + (torch.round(w * lv) / lv - w).detach()
+
+    def weights(self) -> torch.Tensor:
+        """``(rows, cols)`` amplitudes of the active block, in ``[0, 1]``, as displayed."""
+        raise NotImplementedError
+
+    def d2_tensor(self) -> torch.Tensor | float:
+        return float(self.config.d2)
+
+    def mask(self) -> torch.Tensor:
+        """``(384, 160)`` sub-pixel amplitude transmittances (0 outside the active block), detached."""
+        return slm_panel.full_panel(self.weights().detach(), self.block)
+
+    def compute_psf(self) -> torch.Tensor:
+        w = self.weights().to(self.optics_dtype)
+        m = slm_panel.rasterise(w, self.block, self.geometry.grid, self.geometry.spacing)
+        return self.propagated_psf(m, self.d2_tensor())
+
+
+class FixedSLM(_SLMBase):
+    """ST7735R LCD with a fixed (seeded random or loaded) pattern, 4 mm from the sensor."""
+
+    name = "fixed_slm"
+    Config = SLMConfig
+    learnable = False
+    linear = True
+
+    def __init__(self, config=None, **kw):
+        super().__init__(config, **kw)
+        self.register_buffer("pattern", self.initial_pattern(), persistent=False)
+
+    def weights(self) -> torch.Tensor:
+        return self._quantize(self.pattern)
+
+
+class LearnedSLM(_SLMBase):
+    """ST7735R LCD whose 1122 sub-pixel amplitudes (and optionally d2) are learned end to end.
+
+    Parameterisation: amplitude ``w = sigmoid(logit)`` of an unconstrained
+    ``logit`` per active sub-pixel, so ``w`` stays in ``(0, 1)`` with a
+    non-zero gradient ``w (1 - w)`` for every finite logit (no clamping in
+    forward). With ``quantize`` the displayed value is rounded to the panel's
+    levels with a straight-through gradient. With ``learn_d2``,
+    ``d2 = config.d2 * exp(s)`` with a learned scalar ``s`` (always positive).
+    The PSF is recomputed once per optimiser step (the base class caches it
+    on the parameter versions).
+    """
+
+    name = "learned_slm"
+    Config = LearnedSLMConfig
+    learnable = True
+    linear = True
+
+    def __init__(self, config=None, **kw):
+        super().__init__(config, **kw)
+        p = self.initial_pattern().clamp(0.01, 0.99)
+        # float64 logits: the gradient w (1 - w) stays non-zero up to |logit| ~ 36 (float32: ~16).
+        self.logits = nn.Parameter(torch.log(p / (1 - p)))
+        if self.config.learn_d2:
+            self.log_d2_scale = nn.Parameter(torch.zeros((), dtype=self.logits.dtype))
+        else:
+            self.log_d2_scale = None
+
+    def weights(self) -> torch.Tensor:
+        return self._quantize(torch.sigmoid(self.logits))
+
+    def d2_tensor(self) -> torch.Tensor | float:
+        if self.log_d2_scale is None:
+            return float(self.config.d2)
+        return self.config.d2 * torch.exp(self.log_d2_scale.to(torch.float64))
+
+    @property
+    def d2(self) -> float:
+        """Current (possibly learned) LCD-to-sensor distance, metres."""
+        return float(self.d2_tensor().detach()) if self.log_d2_scale is not None else float(self.config.d2)
+
+    def _correlations(self, scene_shape, height_px, device):
+        # With a learned d2 the magnification changes every step: keep only the latest geometry.
+        if self.log_d2_scale is not None:
+            key = (tuple(scene_shape), round(height_px, 9), self.optics_dtype, str(device))
+            for k in [k for k in self._op_cache if k != "op" and k != key]:
+                del self._op_cache[k]
+        return super()._correlations(scene_shape, height_px, device)
+
+
+def panel_image(encoder: _SLMBase) -> np.ndarray:
+    """The ``(128, 160, 3)`` uint8 RGB image an SLM encoder's panel displays (opaque sub-pixels = 0)."""
+    return slm_panel.to_panel_image(encoder.mask())
+

@@ -1,0 +1,173 @@
+"""Physics of the ST7735R LCD encoders (`fixed_slm`, `learned_slm`)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from optoenc import imaging
+from optoenc.encoders import constants as K
+from optoenc.encoders import slm_panel
+from optoenc.encoders.slm import FixedSLM, LearnedSLM, panel_image
+from optoenc.errors import ConfigError
+
+# The 48 x 64 grid (98 um pixels) aliases the spherical source wave; that is expected at this
+# size and irrelevant to the layout and gradient properties checked here.
+pytestmark = pytest.mark.filterwarnings("ignore::optoenc.optics.SamplingWarning")
+
+SMALL = {"fidelity": {"grid": (48, 64)}, "sensor": {"embedding": (6, 8)}}
+# A 0.37 x 0.50 mm sensor: a 4 x 1 sub-pixel block on a (12, 16) float64 grid, for gradcheck.
+TINY = {
+    "fidelity": {"grid": (12, 16), "dtype": "float64"},
+    "sensor": {"embedding": (3, 4), "resolution": (240, 320)},
+    "scene": {"object_height": 0.03},
+}
+
+
+def test_device_constants():
+    # Derived values of REFERENCE §2, to the digits quoted there.
+    assert K.ST7735R_SUBPIXELS == (384, 160)
+    assert K.ST7735R_PITCH == pytest.approx((73.03e-6, 219.25e-6), abs=0.01e-6)
+    assert K.ST7735R_FILL_FACTOR == pytest.approx(0.675, abs=5e-4)
+
+
+@pytest.mark.parametrize("grid", [(48, 64), (200, 301), (384, 512)])
+def test_fill_factor_is_resolution_independent(grid):
+    enc = FixedSLM(fidelity={"grid": grid})
+    dy, dx = enc.geometry.spacing
+    ones = torch.ones(enc.block.shape, dtype=torch.float64)
+    mask = slm_panel.rasterise(ones, enc.block, enc.geometry.grid, enc.geometry.spacing)
+    block_area = enc.block.rows * K.ST7735R_PITCH[0] * enc.block.cols * K.ST7735R_PITCH[1]
+    fill = float(mask.sum()) * dy * dx / block_area
+    # 1 %: the required tolerance; exact fractional areas make it ~1e-12 at any grid.
+    assert fill == pytest.approx(0.675, rel=0.01)
+    # 1e-9: rasterisation is exact, so only rounding differs between grids.
+    assert fill == pytest.approx(K.ST7735R_FILL_FACTOR, rel=1e-9)
+
+
+def test_active_block_is_51_by_22_centred():
+    enc = LearnedSLM(**SMALL)
+    assert enc.block.shape == (51, 22)
+    assert enc.logits.numel() == 1122
+    panel = enc.mask()
+    assert panel.shape == (384, 160)
+    assert int((panel > 0).sum()) == 1122
+    rows, cols = torch.nonzero(panel > 0, as_tuple=True)
+    # centred on the panel (to the half sub-pixel an odd/even split allows)
+    assert abs((int(rows.min()) + int(rows.max())) / 2 - 191.5) <= 0.5
+    assert abs((int(cols.min()) + int(cols.max())) / 2 - 79.5) <= 0.5
+
+
+def test_subpixel_row_k_carries_colour_k_mod_3():
+    enc = FixedSLM(**SMALL)
+    b = enc.block
+    eye = torch.eye(b.rows, dtype=torch.float64)
+    for j in range(b.rows):  # one active row at a time: 51 tiny matrix products
+        w = eye[j][:, None].expand(b.rows, b.cols)
+        m = slm_panel.rasterise(w, b, enc.geometry.grid, enc.geometry.spacing)
+        energy = m.sum(dim=(1, 2))
+        k = b.row0 + j
+        assert energy[k % 3] > 0 and int((energy > 0).sum()) == 1, (k, energy)
+
+
+def test_panel_image_maps_subpixel_rows_to_rgb():
+    enc = FixedSLM(**SMALL)
+    img = panel_image(enc)
+    assert img.shape == (128, 160, 3) and img.dtype == np.uint8
+    panel = enc.mask().numpy()
+    for k in range(enc.block.row0, enc.block.row0 + enc.block.rows):
+        i, c = divmod(k, 3)
+        np.testing.assert_array_equal(img[i, :, c], np.round(panel[k] * 255).astype(np.uint8))
+    assert img[: enc.block.row0 // 3].max() == 0  # opaque outside the block
+
+
+def test_digit_size_on_the_grid():
+    # REFERENCE §2: ~97 px for d2 = 4 mm on the ~12.3 um grid; 0.5 px: rounding of the quoted value.
+    assert FixedSLM().object_height_px() == pytest.approx(97.8, abs=0.5)
+
+
+def test_pattern_seed_and_files(tmp_path):
+    a, b, c = FixedSLM({"seed": 1}, **SMALL), FixedSLM({"seed": 1}, **SMALL), FixedSLM({"seed": 2}, **SMALL)
+    assert torch.equal(a.mask(), b.mask()) and not torch.equal(a.mask(), c.mask())
+    block = np.random.default_rng(5).uniform(size=(51, 22))
+    np.save(tmp_path / "block.npy", block)
+    panel = np.zeros((384, 160))
+    panel[166:217, 69:91] = block
+    np.save(tmp_path / "panel.npy", panel)
+    m1 = FixedSLM({"pattern_path": str(tmp_path / "block.npy")}, **SMALL).mask()
+    m2 = FixedSLM({"pattern_path": str(tmp_path / "panel.npy")}, **SMALL).mask()
+    assert torch.equal(m1, m2) and torch.equal(m1, torch.from_numpy(panel))
+    np.save(tmp_path / "bad.npy", np.zeros((10, 10)))
+    with pytest.raises(ConfigError, match="encoder.pattern_path"):
+        FixedSLM({"pattern_path": str(tmp_path / "bad.npy")}, **SMALL)
+
+
+def test_validation_messages():
+    for cls in (FixedSLM, LearnedSLM):
+        with pytest.raises(ConfigError, match=r"^encoder\.d2 = 0(\.0)?: must be > 0") as err:
+            cls({"d2": 0.0})
+        assert "\n" not in str(err.value)
+    with pytest.raises(ConfigError, match="encoder.active_subpixels.*larger than the panel"):
+        FixedSLM({"active_subpixels": (400, 22)})
+    with pytest.raises(ConfigError, match="encoder.pattern_path.*not found"):
+        LearnedSLM({"pattern_path": "/nonexistent/pattern.npy"})
+    with pytest.raises(ConfigError, match="encoder.quantize"):
+        FixedSLM({"quantize": "rgb888"})
+
+
+def test_rgb565_levels_per_colour():
+    enc = FixedSLM({"quantize": "rgb565"}, **SMALL)
+    panel = enc.mask().numpy()
+    for k in range(enc.block.row0, enc.block.row0 + enc.block.rows):
+        levels = 2 ** K.ST7735R_RGB565_BITS[k % 3] - 1
+        # 1e-9: the quantised values are exact multiples of 1/levels up to rounding.
+        np.testing.assert_allclose(panel[k] * levels, np.round(panel[k] * levels), atol=1e-9)
+
+
+def test_learned_gradients_finite_at_range_ends():
+    enc = LearnedSLM({"quantize": "rgb565", "learn_d2": True}, **SMALL)
+    with torch.no_grad():
+        enc.logits.copy_(torch.where(torch.rand(enc.logits.shape) > 0.5, 30.0, -30.0))
+        enc.logits[0, 0] = 0.0  # keep some light-level variety
+    scene = torch.rand(2, 1, 8, 6, generator=torch.Generator().manual_seed(0))
+    out = enc(scene, noise=False)
+    (out * torch.linspace(-1, 1, out.numel()).reshape(out.shape)).sum().backward()
+    g = enc.logits.grad
+    assert torch.isfinite(g).all() and torch.isfinite(enc.log_d2_scale.grad)
+    # sigmoid'(+-30) = 9.4e-14 in float64: small but never exactly zero (no clamping).
+    assert (g != 0).float().mean() > 0.9
+    assert enc.log_d2_scale.grad != 0
+
+
+def test_learned_gradcheck_float64():
+    enc = LearnedSLM(**TINY)
+    assert enc.block.shape == (4, 1)
+    scene = torch.rand(1, 1, 4, 4, dtype=torch.float64, generator=torch.Generator().manual_seed(1))
+    ry, rx = enc._correlations((4, 4), enc.object_height_px(), scene.device)
+    base = enc.logits.detach().clone()
+
+    def embed(sub):
+        full = torch.cat([sub, base[2:]], dim=0)
+        enc.weights = lambda: torch.sigmoid(full)  # instance override: bypasses the PSF cache
+        psf = imaging.normalize_psf(enc.compute_psf())
+        gray = (torch.tensor([0.299, 0.587, 0.114], dtype=psf.dtype)[:, None, None] * psf).sum(0, keepdim=True)
+        return imaging.apply_operator(imaging.scene_operator(gray, ry, rx), scene)
+
+    sub = base[:2].clone().requires_grad_(True)
+    # gradcheck's own float64 tolerances (finite differences with eps 1e-6).
+    assert torch.autograd.gradcheck(embed, (sub,), eps=1e-6, atol=1e-8, rtol=1e-5)
+
+
+def test_learned_psf_recomputed_once_per_step_and_d2():
+    enc = LearnedSLM({"learn_d2": True}, **SMALL)
+    enc.train()
+    assert enc.psf() is enc.psf()  # cached between steps
+    opt = torch.optim.SGD(enc.parameters(), lr=1.0)
+    out = enc(torch.rand(2, 1, 8, 6), noise=False)
+    (out * torch.randn_like(out)).sum().backward()
+    before = enc.psf()
+    opt.step()
+    assert enc.psf() is not before  # the step invalidates it
+    assert enc.d2 != pytest.approx(4e-3, rel=1e-12) and enc.d2 > 0
+    assert enc.magnification == pytest.approx(enc.d2 / 0.4)  # magnification follows the learned d2
