@@ -1,0 +1,156 @@
+"""The docs cannot drift: generated reference up to date, every hook and built-in documented, commands real."""
+
+from __future__ import annotations
+
+import difflib
+import re
+import shlex
+from pathlib import Path
+
+import pytest
+
+from optoenc import docs, plugins
+from optoenc.hookspecs import HOOKS, hookimpl
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = ROOT / "docs"
+#: pages written for this test's checks of links and commands (others' pages are checked for being linked)
+OWN_PAGES = ["index.md", "getting-started.md", "plugin-authoring.md"]
+
+
+def _read(name: str) -> str:
+    path = DOCS / name
+    assert path.is_file(), f"docs/{name} is missing"
+    return path.read_text(encoding="utf-8")
+
+
+@pytest.fixture(autouse=True)
+def fresh_host():
+    plugins.reset()
+    yield
+    plugins.reset()
+
+
+def test_settings_reference_is_up_to_date():
+    current, generated = _read("settings.md"), docs.generate()
+    if current != generated:
+        diff = "\n".join(list(difflib.unified_diff(current.splitlines(), generated.splitlines(), "docs/settings.md", "generated", lineterm="", n=1))[:30])
+        pytest.fail(f"docs/settings.md is stale: run `python -m optoenc.docs` and commit the result.\n{diff}")
+
+
+@pytest.mark.parametrize("hook", list(HOOKS))
+def test_every_hook_is_documented(hook):
+    assert hook in _read("plugin-authoring.md"), f"hook {hook} is not mentioned in docs/plugin-authoring.md"
+
+
+def _builtin_names() -> list[tuple[str, str]]:
+    host = plugins.PluginHost(entry_points=False)
+    (info,) = [p for p in host.plugins if p.name == "builtins"]
+    assert info.ok, info.error
+    return [(kind, name) for kind, names in info.registered.items() for name in names]
+
+
+def test_every_builtin_is_in_the_settings_reference():
+    text = _read("settings.md")
+    missing = [f"{k} {n}" for k, n in _builtin_names() if f"### {k} `{n}`" not in text]
+    assert not missing, f"built-ins missing from docs/settings.md: {missing}; run `python -m optoenc.docs`"
+
+
+def test_reference_documents_builtins_only():
+    """Installed or runtime plugins do not leak into the committed reference (but --installed includes them)."""
+    from optoenc.encoders.diffuser import Diffuser
+
+    extra = type("Extra", (Diffuser,), {"name": "extra_cam", "__doc__": "An extra camera."})
+    plugin = type("P", (), {"optoenc_register_encoders": staticmethod(hookimpl(lambda registry: registry.add(extra)))})
+    assert plugins.register_plugin(plugin(), name="extra").ok
+    assert "extra_cam" not in docs.generate()
+    assert "### encoder `extra_cam`" in docs.generate(installed=True)
+    assert "extra_cam" in plugins.get_registry("encoder")  # the process-wide host is restored
+
+
+def test_docs_main_writes_and_checks(tmp_path, capsys):
+    out = tmp_path / "settings.md"
+    assert docs.main(["--output", str(out)]) == 0
+    assert out.read_text(encoding="utf-8") == docs.generate()
+    assert docs.main(["--output", str(out), "--check"]) == 0
+    out.write_text("# old\n", encoding="utf-8")
+    assert docs.main(["--output", str(out), "--check"]) == 1
+    assert "run `python -m optoenc.docs`" in capsys.readouterr().err
+    assert [p.name for p in tmp_path.iterdir()] == ["settings.md"]  # no temporary files left
+
+
+def test_index_links_every_page():
+    index = _read("index.md")
+    linked = set(re.findall(r"\]\(([^)#]+\.md)", index))
+    pages = {p.name for p in DOCS.glob("*.md")} - {"index.md"}
+    assert pages <= linked, f"docs/index.md does not link {sorted(pages - linked)}"
+
+
+@pytest.mark.parametrize("page", OWN_PAGES + ["../plugins/optoenc-example/README.md"])
+def test_relative_links_resolve(page):
+    path = (DOCS / page).resolve()
+    for target in re.findall(r"\]\(([^)#:]+)(?:#[^)]*)?\)", path.read_text(encoding="utf-8")):
+        assert (path.parent / target).exists(), f"{page}: broken link {target}"
+
+
+def _commands(page: str) -> list[list[str]]:
+    """``optoenc ...`` command lines in the page's code blocks, split like a shell would."""
+    out, in_code = [], False
+    for line in _read(page).splitlines():
+        if line.startswith("```"):
+            in_code = not in_code
+            continue
+        line = line.split(" # ")[0].split(" > ")[0].strip().removeprefix("$ ")
+        m = re.search(r"(?:^|&& )(optoenc .*)$", line) if in_code else None
+        if m:
+            out.append(shlex.split(m.group(1))[1:])
+    return out
+
+
+@pytest.mark.parametrize("page", ["getting-started.md", "plugin-authoring.md"])
+def test_documented_subcommands_exist(page):
+    from optoenc.cli import COMMANDS
+
+    cmds = _commands(page)
+    assert cmds, f"no optoenc commands found in docs/{page}"
+    for argv in cmds:
+        assert argv[0] in COMMANDS or argv[0].startswith("--"), f"docs/{page}: `optoenc {' '.join(argv)}`: no such command"
+
+
+def test_documented_fit_commands_compose(capsys, tmp_path, monkeypatch):
+    """Every `optoenc fit` line of getting-started (but --resume) resolves with --print-config, run.yaml included."""
+    from optoenc.cli import main
+
+    monkeypatch.chdir(tmp_path)  # `--print-config > run.yaml` is written here
+    lines = [a for a in _commands("getting-started.md") if a[0] == "fit" and "--resume" not in a]
+    assert any("--encoder.d2=4e-3" in a for a in lines) and any("--config" in a for a in lines)
+    for argv in sorted(lines, key=lambda a: "--config" in a):  # files after the line that writes them
+        code = main([*argv, "--print-config"] if "--print-config" not in argv else argv)
+        out, err = capsys.readouterr()
+        assert code == 0, f"`optoenc {' '.join(argv)}`: {err}"
+        if "--print-config" in argv:
+            (tmp_path / "run.yaml").write_text(out, encoding="utf-8")
+
+
+def test_getting_started_covers_the_basics():
+    text = _read("getting-started.md")
+    for needle in (
+        "pip install -c constraints.txt -e . && optoenc fit --encoder diffuser --decoder fcnn --trainer.max_epochs=1",
+        'pip install -c constraints.txt -e ".[test]" && pytest',
+        "config.yaml", "metrics.csv", "summary.json", "best.ckpt", "last.ckpt", "pictures/",
+        "optoenc fit --resume RUN_DIR", "optoenc encoders diffuser", "--json", "--config run.yaml", "--print-config",
+    ):
+        assert needle in text, f"docs/getting-started.md should mention {needle!r}"
+
+
+def test_plugin_authoring_matches_the_example_plugin():
+    text = _read("plugin-authoring.md")
+    pyproject = (ROOT / "plugins" / "optoenc-example" / "pyproject.toml").read_text(encoding="utf-8")
+    entry = 'example = "optoenc_example.plugin"'
+    assert entry in text and entry in pyproject
+    for needle in ("optoenc.testing", "EncoderConformance", "check_encoder", "OPTOENC_STRICT_PLUGINS", "compute_psf", "setting(", "learnable", "linear"):
+        assert needle in text, f"docs/plugin-authoring.md should explain {needle}"
+    from optoenc.testing import CHECKS
+
+    missing = [c for c in CHECKS if f"| `{c}` |" not in text]
+    assert not missing, f"conformance checks not described in docs/plugin-authoring.md: {missing}"
