@@ -49,6 +49,8 @@ class TrainerConfig(Settings):
     lr: float = setting(1e-3, "Adam learning rate (encoder and decoder)", gt=0)
     encoder_lr: Optional[float] = setting(None, "learning rate of the encoder's parameters (null: lr)", gt=0)
     precompute: bool = setting(True, "encode the dataset once for fixed, non-augmented encoders (noise still drawn per batch)")
+    cache: bool = setting(True, "cache precomputed embeddings on disk (keyed by everything that affects them)")
+    cache_dir: Optional[str] = setting(None, "embedding cache folder (null: $OPTOENC_CACHE_DIR or ~/.cache/optoenc)")
     eval_batch_size: int = setting(1000, "examples per batch when encoding or evaluating", ge=1)
     progress: bool = setting(True, "show progress bars")
     threads: Optional[int] = setting(None, "torch CPU threads (null: torch's default)", ge=1)

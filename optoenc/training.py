@@ -16,7 +16,9 @@ from typing import Any
 
 import torch
 
-from . import pictures
+import hashlib
+
+from . import cache, pictures
 from .config import RunConfig, build_encoder
 from .geometry import FidelityConfig
 from .loaders import encode, make_loader
@@ -65,7 +67,14 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
     bs, ebs = run.trainer.batch_size, run.trainer.eval_batch_size
     data = {"train": splits.train, "val": splits.val, "test": splits.test}
     if precomputed:
-        data = {k: (_encode(encoder, x, ebs, progress, k), y) for k, (x, y) in data.items()}
+        key = cache.embedding_key(encoder, run.dataset, _digest(data))
+        emb, _ = cache.cached(
+            key,
+            lambda: {k: _encode(encoder, x, ebs, progress, k) for k, (x, _y) in data.items()},
+            root=run.trainer.cache_dir,
+            enabled=run.trainer.cache,
+        )
+        data = {k: (emb[k], y) for k, (_x, y) in data.items()}
     canvas = _canvas(run, encoder, splits.train[0].shape[-2:]) if augs else None
     module = EncoderClassifier(
         encoder,
@@ -88,6 +97,15 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
         "test": make_loader(*data["test"], ebs, shuffle=False),
     }
     return Parts(module, splits, loaders, precomputed)
+
+
+def _digest(data: dict[str, tuple[torch.Tensor, torch.Tensor]]) -> str:
+    """Content digest of the scenes (the cache must not outlive a changed dataset)."""
+    h = hashlib.sha256()
+    for k in sorted(data):
+        h.update(k.encode())
+        h.update(data[k][0].contiguous().numpy().tobytes())
+    return h.hexdigest()
 
 
 def _encode(encoder, images, batch_size, progress, split):

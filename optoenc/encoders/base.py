@@ -27,6 +27,8 @@ __all__ = ["EncoderConfig", "OpticalEncoder"]
 
 #: Above this many operator entries the fine-grid (FFT) path is used instead.
 _MAX_OPERATOR_ENTRIES = 40_000_000
+#: Scene geometries whose correlation tensors are kept (oldest dropped first).
+_MAX_GEOMETRIES = 4
 
 
 @dataclass
@@ -162,13 +164,17 @@ class OpticalEncoder(nn.Module, abc.ABC):
 
     # ----------------------------------------------------------------- imaging
     def _correlations(self, scene_shape: tuple[int, int], height_px: float, device) -> tuple[torch.Tensor, torch.Tensor]:
-        key = (scene_shape, round(height_px, 9), self.optics_dtype, str(device))
+        key = ("corr", scene_shape, round(height_px, 9), self.optics_dtype, str(device))
         if key not in self._op_cache:
             H, W = self.geometry.grid
             a, b = self.geometry.embedding
             py, px = imaging.placement_matrices(scene_shape, (H, W), height_px)
             ry = imaging.correlation_tensor(imaging.box_matrix(H, a), py, H)
             rx = imaging.correlation_tensor(imaging.box_matrix(W, b), px, W)
+            # Bounded: a learned d2 changes the height every step.
+            stale = [k for k in self._op_cache if k[0] == "corr"]
+            for k in stale[: max(0, len(stale) - _MAX_GEOMETRIES + 1)]:
+                del self._op_cache[k]
             self._op_cache[key] = (ry.to(device, self.optics_dtype), rx.to(device, self.optics_dtype))
         return self._op_cache[key]
 
