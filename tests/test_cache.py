@@ -1,0 +1,90 @@
+"""Embedding cache: warm hits, and never a stale entry when the physics changes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from optoenc import cache
+from optoenc.config import build_encoder, compose
+
+
+@pytest.fixture
+def cache_root(tmp_path, monkeypatch):
+    monkeypatch.setenv(cache.ENV, str(tmp_path / "cache"))
+    return tmp_path / "cache"
+
+
+def key_for(encoder_name="diffuser", overrides=(), dataset_token="d"):
+    run = compose(overrides=list(overrides), names={"encoder": encoder_name})
+    return cache.embedding_key(build_encoder(run), run.dataset, dataset_token)
+
+
+def test_store_load_round_trip_and_corruption_is_detected(cache_root):
+    t = {"train": torch.arange(6.0).reshape(2, 3)}
+    path = cache.store("ab" * 32, t)
+    assert torch.equal(cache.load("ab" * 32)["train"], t["train"])
+    raw = bytearray(path.read_bytes())
+    raw[-5] ^= 0xFF  # flip a byte of the payload
+    path.write_bytes(bytes(raw))
+    with pytest.warns(UserWarning, match="corrupt"):
+        assert cache.load("ab" * 32) is None
+    assert not path.exists()  # removed, so the next run recomputes
+
+
+def test_cached_computes_once(cache_root):
+    calls = []
+
+    def compute():
+        calls.append(1)
+        return {"x": torch.ones(2)}
+
+    _, hit1 = cache.cached("cd" * 32, compute)
+    _, hit2 = cache.cached("cd" * 32, compute)
+    assert (hit1, hit2) == (False, True) and len(calls) == 1
+
+
+@pytest.mark.parametrize(
+    "encoder,change",
+    [
+        ("diffuser", "encoder.d2=5e-3"),  # a distance
+        ("diffuser", "scene.distance=0.5"),
+        ("diffuser", "sensor.snr_db=20"),  # the SNR
+        ("diffuser", "sensor.embedding=[12,16]"),
+        ("diffuser", "fidelity.preset=fast"),
+        ("fixed_slm", "encoder.seed=1"),  # the seed of a fixed pattern
+        ("coded_aperture", "encoder.feature_size=3.1e-5"),
+    ],
+)
+def test_any_physical_change_changes_the_key(cache_root, encoder, change):
+    assert key_for(encoder) == key_for(encoder)  # deterministic
+    assert key_for(encoder, [change]) != key_for(encoder)
+
+
+def test_psf_file_contents_change_the_key(cache_root, tmp_path):
+    psf = np.zeros((30, 40))
+    psf[10:20, 10:30] = 1.0
+    path = tmp_path / "psf.npy"
+    np.save(path, psf)
+    k1 = key_for("diffuser", [f"encoder.psf_path={path}"])
+    psf[12, 12] = 5.0  # same file name, new contents
+    np.save(path, psf)
+    assert key_for("diffuser", [f"encoder.psf_path={path}"]) != k1
+
+
+def test_dataset_change_changes_the_key(cache_root):
+    assert key_for(dataset_token="a") != key_for(dataset_token="b")
+
+
+def test_warm_cache_is_used_by_a_run(cache_root, tmp_path, quick):
+    from optoenc.training import build
+
+    run = compose(overrides=quick, names={"encoder": "diffuser", "decoder": "logistic"})
+    a = build(run)
+    files = list(cache_root.rglob("*.pt"))
+    assert len(files) == 1
+    b = build(run)  # second build: a cache hit gives identical tensors
+    for split in ("train", "val", "test"):
+        assert torch.equal(a.loaders[split].dataset.tensors[0], b.loaders[split].dataset.tensors[0])
+    assert list(cache_root.rglob("*.pt")) == files
