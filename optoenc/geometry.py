@@ -49,9 +49,9 @@ class SensorConfig(Settings):
 
 #: Named fidelity presets: the one table of their values (docs list it).
 FIDELITY_PRESETS: dict[str, dict] = {
-    "reference": {"grid": (768, 1024), "dtype": "float64", "padding": 2.0},
-    "default": {"grid": (384, 512), "dtype": "float32", "padding": 1.0},
-    "fast": {"grid": (192, 256), "dtype": "float32", "padding": 0.5},
+    "reference": {"grid": (768, 1024), "dtype": "float64", "padding": "1.0"},
+    "default": {"grid": (384, 512), "dtype": "float32", "padding": "auto"},
+    "fast": {"grid": (192, 256), "dtype": "float32", "padding": "auto"},
 }
 
 
@@ -65,7 +65,21 @@ class FidelityConfig(Settings):
     preset: str = setting("default", "named preset filling the knobs left null", choices=tuple(FIDELITY_PRESETS))
     grid: Optional[tuple[int, int]] = setting(None, "simulation grid (rows, columns) over the sensor area", ge=1)
     dtype: Optional[str] = setting(None, "floating point precision of the optics", choices=("float32", "float64"))
-    padding: Optional[float] = setting(None, "propagation zero padding, as a fraction of the grid per side", ge=0)
+    padding: Optional[str] = setting(
+        None,
+        "propagation zero padding per side: 'auto' (the diffraction spread the grid can carry, "
+        "so nothing wraps around) or a fraction of the grid such as 0.5",
+    )
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.padding is not None and self.padding != "auto":
+            try:
+                ok = float(self.padding) >= 0
+            except ValueError:
+                ok = False
+            if not ok:
+                raise ConfigError("padding", self.padding, "must be 'auto' or a fraction >= 0 of the grid")
 
     def resolved(self) -> dict:
         """The knob values after filling the nulls from the preset."""

@@ -35,10 +35,12 @@ __all__ = ["MaskEncoder", "CodedApertureConfig", "CodedAperture", "mls_sequence"
 class MaskEncoder(OpticalEncoder):
     """Base of the encoders whose PSF is point source -> mask -> BLAS over ``d2`` -> ``|U|^2``."""
 
-    def fidelity_padding(self) -> tuple[int, int]:
-        """Zero padding per side, in grid pixels, from ``fidelity.padding`` (a fraction of the grid)."""
-        frac = float(self.fidelity.resolved()["padding"])
-        return tuple(math.ceil(frac * n) for n in self.geometry.grid)
+    def fidelity_padding(self) -> tuple[int, int] | str:
+        """Zero padding per side: ``"auto"``, or grid pixels from a fraction of the grid (``fidelity.padding``)."""
+        pad = self.fidelity.resolved()["padding"]
+        if pad == "auto":
+            return "auto"
+        return tuple(math.ceil(float(pad) * n) for n in self.geometry.grid)
 
     def propagated_psf(self, mask: torch.Tensor, d2: float | torch.Tensor) -> torch.Tensor:
         """``(3, H, W)`` intensity PSF (each channel summing to one) of an amplitude ``mask``.
