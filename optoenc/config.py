@@ -211,7 +211,8 @@ def compose(
 
     def build(section: str, cls: type, node: DictConfig) -> Any:
         data = OmegaConf.to_container(node, resolve=True)
-        data.pop("name", None)
+        if section in _PLUGIN_SECTIONS:
+            data.pop("name", None)  # the plugin's registry name, not one of its settings
         data = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
         try:
             return cls(**data)

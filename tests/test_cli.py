@@ -95,3 +95,8 @@ def test_psf_picture(capsys, tmp_path):
 def test_version_lists_plugins(capsys):
     code, out, _ = run_cli(capsys, "--version")
     assert code == 0 and "optoenc" in out and "builtins" in out
+
+
+def test_output_name_is_used_for_the_run_directory(tmp_path, quick_args):
+    assert main(["fit", "--encoder", "diffuser", "--decoder", "logistic", "--trainer.max_epochs=1", "--output.name=myrun", *quick_args]) == 0
+    assert (tmp_path / "myrun" / "summary.json").exists()
