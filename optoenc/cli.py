@@ -73,6 +73,10 @@ def _parser() -> argparse.ArgumentParser:
     _run_options(si)
     si.add_argument("--out", required=True, metavar="DIR")
     si.add_argument("--count", type=int, default=8, help="digits per picture")
+    ex = sub.add_parser("export", help="export a trained SLM pattern as the 128 x 160 RGB image the panel displays")
+    ex.add_argument("--run", required=True, metavar="RUN_DIR", help="run directory written by `optoenc fit`")
+    ex.add_argument("--which", default="best", choices=("best", "last"), help="checkpoint")
+    ex.add_argument("--out", required=True, metavar="FILE.png")
     b = sub.add_parser("bench", help="benchmarks (speed and accuracy, side by side)")
     b.add_argument("what", nargs="?", default="optics", choices=("optics",), help="which benchmark")
     b.add_argument("--out", metavar="DIR", help="also write CSV/PNG here")
@@ -141,19 +145,42 @@ def cmd_fit(args, extra) -> int:
 
 
 def cmd_evaluate(args, extra) -> int:
-    from .rundir import RUN_FILES
     from .training import evaluate
 
     run_dir = Path(args.run)
-    cfg = run_dir / RUN_FILES["config"]
-    if not cfg.is_file():
-        raise ConfigError("--run", args.run, f"not a run directory (no {RUN_FILES['config']})")
-    from .config import compose
-
-    run = compose([_load_yaml(str(cfg))], _split_overrides(extra))
+    run = _run_config(args.run, extra)
     _quiet_lightning()
     metrics = evaluate(run, run_dir, args.command, args.which)
     print("  ".join(f"{k} {v:.4f}" for k, v in sorted(metrics.items())))
+    return 0
+
+
+def _run_config(run_dir: str, extra):
+    from .config import compose
+    from .rundir import RUN_FILES
+
+    cfg = Path(run_dir) / RUN_FILES["config"]
+    if not cfg.is_file():
+        raise ConfigError("--run", run_dir, f"not a run directory (no {RUN_FILES['config']})")
+    return compose([_load_yaml(str(cfg))], _split_overrides(extra))
+
+
+def cmd_export(args, extra) -> int:
+    from PIL import Image
+
+    from .rundir import atomic_write_bytes
+    from .training import load_encoder
+
+    run = _run_config(args.run, extra)
+    enc = load_encoder(run, Path(args.run), args.which)
+    if not hasattr(enc, "mask") or enc.mask().shape != (384, 160):
+        raise ConfigError("--run", args.run, f"encoder {enc.name!r} has no ST7735R panel pattern to export")
+    from .encoders.slm import panel_image
+    import io
+
+    buf = io.BytesIO()
+    Image.fromarray(panel_image(enc), mode="RGB").save(buf, format="PNG")
+    print(atomic_write_bytes(args.out, buf.getvalue()))
     return 0
 
 
@@ -232,6 +259,7 @@ COMMANDS = {
     "psf": cmd_psf,
     "simulate": cmd_simulate,
     "bench": cmd_bench,
+    "export": cmd_export,
     **{k: cmd_list for k in KIND_COMMANDS},
 }
 
@@ -245,7 +273,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not args.command:
             parser.print_help()
             return 0
-        if extra and args.command not in ("fit", "validate", "test", "psf", "simulate"):
+        if extra and args.command not in ("fit", "validate", "test", "psf", "simulate", "export"):
             parser.error(f"unrecognized arguments: {' '.join(extra)}")
         return COMMANDS[args.command](args, extra)
     except OptoencError as err:

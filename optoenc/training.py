@@ -27,7 +27,7 @@ from .plugins import get_registry
 from .rundir import RUN_FILES, atomic_write_text, write_json
 from .settings import to_dict
 
-__all__ = ["Parts", "build", "fit", "evaluate", "checkpoint_path"]
+__all__ = ["Parts", "build", "fit", "evaluate", "checkpoint_path", "load_encoder", "verify"]
 
 log = logging.getLogger(__name__)
 
@@ -248,6 +248,15 @@ def verify(parts: Parts, run: RunConfig, preset: str) -> dict[str, Any]:
         emb = ref.add_sensor_noise(ref.measure(xb))
         correct += int((module.decoder(emb).argmax(1) == y[i : i + len(xb)]).sum())
     return {"preset": preset, "test_acc": correct / max(len(x), 1)}
+
+
+def load_encoder(run: RunConfig, run_dir: Path, which: str = "best"):
+    """The run's encoder with the trained parameters of checkpoint ``which``."""
+    encoder = build_encoder(run)
+    ckpt = torch.load(checkpoint_path(run_dir, which), map_location="cpu", weights_only=False)
+    state = {k[len("encoder.") :]: v for k, v in ckpt["state_dict"].items() if k.startswith("encoder.")}
+    encoder.load_state_dict(state, strict=False)
+    return encoder.eval()
 
 
 def evaluate(run: RunConfig, run_dir: Path, stage: str = "test", which: str = "best") -> dict[str, float]:
