@@ -47,7 +47,12 @@ class TrainerConfig(Settings):
     max_epochs: int = setting(50, "training epochs", ge=1)
     batch_size: int = setting(200, "examples per optimiser step", ge=1)
     lr: float = setting(1e-3, "Adam learning rate (encoder and decoder)", gt=0)
-    encoder_lr: Optional[float] = setting(None, "learning rate of the encoder's parameters (null: lr)", gt=0)
+    encoder_lr: Optional[float] = setting(
+        1e-2,
+        "Adam learning rate of the encoder's parameters (null: lr). Higher than the decoder's because learned "
+        "masks are sigmoid logits: at 1e-2 a sub-pixel can cross its range within an epoch, at 1e-3 it barely moves",
+        gt=0,
+    )
     precompute: bool = setting(True, "encode the dataset once for fixed, non-augmented encoders (noise still drawn per batch)")
     cache: bool = setting(True, "cache precomputed embeddings on disk (keyed by everything that affects them)")
     cache_dir: Optional[str] = setting(None, "embedding cache folder (null: $OPTOENC_CACHE_DIR or ~/.cache/optoenc)")

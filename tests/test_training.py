@@ -88,3 +88,13 @@ def test_diffuser_fcnn_one_epoch_full_mnist_reaches_90_percent(tmp_path):
     summary = fit(run, tmp_path / "full")
     assert summary["test_acc"] >= 0.90
     assert summary["verify"]["preset"] == "reference" and summary["verify"]["test_acc"] >= 0.90
+
+
+@pytest.mark.slow
+def test_learned_slm_beats_fixed_slm_with_the_same_budget(tmp_path):
+    """Issue outcome: 24x32, FCNN, same epochs, same seed: learned SLM > fixed SLM on test accuracy."""
+    common = ["trainer.max_epochs=2", "trainer.progress=false", "trainer.verify_preset=null", "output.examples=0"]
+    acc = {}
+    for enc in ("learned_slm", "fixed_slm"):
+        acc[enc] = fit(compose(overrides=common, names={"encoder": enc, "decoder": "fcnn"}), tmp_path / enc)["test_acc"]
+    assert acc["learned_slm"] > acc["fixed_slm"], acc
