@@ -1,0 +1,293 @@
+"""Object-plane augmentations (REFERENCE §3 robustness): shift, rescale, rotate, perspective.
+
+They act on a *canvas*: the object plane over the camera's whole field of
+view (FOV), sampled at ``CanvasGeometry.pitch`` metres, with the digit placed
+centred at its physical size by :func:`to_canvas`. The encoder then images
+the canvas as a scene of height ``CanvasGeometry.height``. Parameters are in
+physical units, drawn per example from torch's global RNG at every call (so
+``lightning.seed_everything`` makes them reproducible).
+
+Shift and rescale are exact area resamplings of the piecewise-constant canvas
+(total intensity preserved by a shift, scaled by ``s**2`` by a rescale, while
+the object stays on the canvas); rotate and perspective use kornia's bilinear
+warps. Chain several with :class:`Compose`, which tracks where the object is
+(centre, bounding box, height) so that e.g. a shift after a rescale keeps the
+rescaled object in view.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, ClassVar, Sequence
+
+import torch
+from kornia.geometry.transform import get_perspective_transform, get_rotation_matrix2d, warp_affine, warp_perspective
+from torch import nn
+
+from .encoders.base import _coerce
+from .errors import ConfigError
+from .imaging import area_matrix
+from .settings import Settings, setting
+
+__all__ = [
+    "CanvasGeometry", "canvas_geometry", "to_canvas", "ObjectState", "Augmentation", "Compose",
+    "Shift", "Rescale", "Rotate", "Perspective", "BUILTIN",
+]
+
+
+@dataclass(frozen=True)
+class CanvasGeometry:
+    """Sampling of the object-plane canvas (lengths in metres)."""
+
+    shape: tuple[int, int]  #: canvas (rows, columns)
+    pitch: float  #: canvas pixel pitch, m
+    object_height: float  #: height of the scene image placed by :func:`to_canvas`, m
+    object_width: float  #: its width (from the scene's aspect ratio), m
+    fov: tuple[float, float]  #: field of view (height, width) in the object plane, m
+
+    @property
+    def height(self) -> float:
+        """Physical canvas height (the scene height to give the encoder), m; >= the FOV height."""
+        return self.shape[0] * self.pitch
+
+    @property
+    def width(self) -> float:
+        return self.shape[1] * self.pitch
+
+    def object_box(self) -> tuple[float, float, float, float]:
+        """``(top, left, rows, cols)`` of the placed object, canvas pixels (centred; whole-pixel aligned
+        along an axis where its size is a whole number of pixels, so such a scene is copied exactly)."""
+        out = []
+        for n, size in zip(self.shape, (self.object_height, self.object_width)):
+            px = size / self.pitch
+            start = (n - px) / 2
+            if abs(px - round(px)) < 1e-6:
+                start = math.floor(start + 1e-6)
+            out.append((start, px))
+        return out[0][0], out[1][0], out[0][1], out[1][1]
+
+
+def canvas_geometry(
+    object_height: float, scene_shape: tuple[int, int], fov_height: float, fov_width: float, min_pitch: float = 0.0
+) -> CanvasGeometry:
+    """The canvas covering the FOV, pitch ``max(object_height / rows, min_pitch)``.
+
+    Args:
+        object_height: physical height of the scene image, m.
+        scene_shape: ``(h, w)`` scene pixels.
+        fov_height, fov_width: FOV in the object plane (sensor size / magnification), m.
+        min_pitch: finest useful pitch (grid spacing / magnification), m.
+    """
+    for key, v in (("object_height", object_height), ("fov_height", fov_height), ("fov_width", fov_width)):
+        if not v > 0:
+            raise ConfigError(key, v, "must be > 0 m")
+    h, w = (int(s) for s in scene_shape)
+    pitch = max(object_height / h, float(min_pitch))
+    shape = (max(1, math.ceil(fov_height / pitch - 1e-9)), max(1, math.ceil(fov_width / pitch - 1e-9)))
+    return CanvasGeometry(shape, pitch, float(object_height), object_height * w / h, (float(fov_height), float(fov_width)))
+
+
+def to_canvas(scenes: torch.Tensor, geometry: CanvasGeometry) -> torch.Tensor:
+    """Place ``(B, C, h, w)`` scenes centred on the ``(B, C, rows, cols)`` canvas at their physical size.
+
+    Exact area resampling (each canvas pixel averages the piecewise-constant
+    scene over its area); parts outside the canvas are cropped.
+    """
+    h, w = scenes.shape[-2:]
+    if abs(geometry.object_width * h / (geometry.object_height * w) - 1) > 1e-6:
+        raise ConfigError("scene", tuple(scenes.shape), f"aspect ratio differs from the canvas geometry's {geometry}")
+    top, left, rows, cols = geometry.object_box()
+    py = area_matrix(h, geometry.shape[0], top, rows).to(scenes.device, scenes.dtype)
+    px = area_matrix(w, geometry.shape[1], left, cols).to(scenes.device, scenes.dtype)
+    return py @ scenes @ px.T
+
+
+@dataclass
+class ObjectState:
+    """Where the object is on the canvas, per example: ``center`` and ``box`` ``(B, 2)`` (rows, cols) in
+    canvas pixels (the canvas spans ``[0, rows) x [0, cols)``), nominal ``height`` ``(B,)`` in metres."""
+
+    center: torch.Tensor
+    box: torch.Tensor
+    height: torch.Tensor
+
+    @classmethod
+    def initial(cls, geometry: CanvasGeometry, batch: int, object_height: Any = None, device=None) -> "ObjectState":
+        """The object as :func:`to_canvas` placed it, of height ``object_height`` (default the geometry's)."""
+        top, left, rows, cols = geometry.object_box()
+        h = torch.as_tensor(geometry.object_height if object_height is None else object_height, dtype=torch.float64)
+        h = h.to(device).expand(batch).clone()
+        center = torch.tensor([top + rows / 2, left + cols / 2], dtype=torch.float64, device=device).expand(batch, 2)
+        box = torch.stack([h, h * geometry.object_width / geometry.object_height], 1) / geometry.pitch
+        return cls(center.clone(), box, h)
+
+
+def _resample_axis(img: torch.Tensor, dim: int, start: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
+    """Exact area resampling along ``dim`` (-2 or -1) of ``(B, C, H, W)`` images: input cell ``p`` maps to
+    ``[start + scale p, start + scale (p + 1))`` (output-cell units; ``start``, ``scale`` of shape ``(B,)``).
+
+    Uses the cumulative integral ``F`` of the piecewise-constant input, which
+    is exactly linear between cell edges: ``out[y] = scale (F(x1) - F(x0))``.
+    """
+    x = img.transpose(-1, -2) if dim == -1 else img
+    B, C, n, m = x.shape
+    F = torch.nn.functional.pad(x.cumsum(2), (0, 0, 1, 0))[:, :, :n]  # F at the left edge of each cell
+    y = torch.arange(n + 1, device=img.device, dtype=torch.float64)
+    pos = ((y[None] - start[:, None]) / scale[:, None]).clamp(0, n)  # input coordinate of each output edge
+    i = pos.floor().clamp(max=n - 1)
+    t = (pos - i).to(img.dtype)[:, None, :, None]
+    idx = i.long()[:, None, :, None].expand(B, C, n + 1, m)
+    Fi = torch.gather(F, 2, idx) + t * torch.gather(x, 2, idx)  # exactly constant across empty cells
+    out = (Fi[:, :, 1:] - Fi[:, :, :-1]) * scale.to(img.dtype)[:, None, None, None]
+    out = out.clamp_min(0)
+    return out.transpose(-1, -2) if dim == -1 else out
+
+
+def _uniform(batch: int, lo: Any, hi: Any, device) -> torch.Tensor:
+    """``U[lo, hi]`` per example from torch's global RNG, float64."""
+    return lo + (hi - lo) * torch.rand(batch, device=device).double()
+
+
+class Augmentation(nn.Module):
+    """Base class: a random object-plane transform of a canvas ``(B, C, rows, cols)``.
+
+    Subclasses set ``name``, ``Config`` (a :class:`Settings` dataclass, SI
+    units unless its help says otherwise) and implement :meth:`apply`.
+    """
+
+    name: ClassVar[str] = ""
+    Config: ClassVar[type] = Settings
+
+    def __init__(self, config: Any = None):
+        super().__init__()
+        self.config = _coerce(self.Config, config, f"augment.{self.name}")
+
+    def apply(self, canvas: torch.Tensor, geometry: CanvasGeometry, state: ObjectState) -> tuple[torch.Tensor, ObjectState]:
+        """Transform the canvas of objects in ``state``; returns the new canvas and state."""
+        raise NotImplementedError
+
+    def forward(self, canvas: torch.Tensor, geometry: CanvasGeometry, object_height: Any = None) -> torch.Tensor:
+        """Transform a canvas made by :func:`to_canvas` (object centred, of height ``object_height`` m)."""
+        state = ObjectState.initial(geometry, canvas.shape[0], object_height, canvas.device)
+        return self.apply(canvas, geometry, state)[0]
+
+    @classmethod
+    def summary(cls) -> str:
+        return (cls.__doc__ or "").strip().splitlines()[0] if cls.__doc__ else ""
+
+    def extra_repr(self) -> str:
+        return f"config={self.config}"
+
+
+class Compose(nn.Module):
+    """Several augmentations applied in order, tracking the object between them."""
+
+    def __init__(self, augmentations: Sequence[Augmentation]):
+        super().__init__()
+        self.augmentations = nn.ModuleList(augmentations)
+
+    def forward(self, canvas: torch.Tensor, geometry: CanvasGeometry, object_height: Any = None) -> torch.Tensor:
+        state = ObjectState.initial(geometry, canvas.shape[0], object_height, canvas.device)
+        for aug in self.augmentations:
+            canvas, state = aug.apply(canvas, geometry, state)
+        return canvas
+
+
+@dataclass
+class ShiftConfig(Settings):
+    margin: float = setting(0.0, "clearance kept between the object's bounding box and the FOV edge", unit="m", ge=0)
+
+
+class Shift(Augmentation):
+    """Shift: uniform translation anywhere in the field of view, object fully visible."""
+
+    name = "shift"
+    Config = ShiftConfig
+
+    def apply(self, canvas, geometry, state):
+        B, new = canvas.shape[0], torch.empty_like(state.center)
+        for a, (n, fov) in enumerate(zip(geometry.shape, geometry.fov)):
+            half = min(fov / geometry.pitch, n) / 2
+            lo = n / 2 - half + state.box[:, a] / 2 + self.config.margin / geometry.pitch
+            hi = n / 2 + half - state.box[:, a] / 2 - self.config.margin / geometry.pitch
+            u = _uniform(B, 0.0, 1.0, canvas.device)
+            new[:, a] = torch.where(hi >= lo, lo + u * (hi - lo), state.center[:, a])  # too big: stays
+        t, one = new - state.center, torch.ones(B, dtype=torch.float64, device=canvas.device)
+        out = _resample_axis(_resample_axis(canvas, -2, t[:, 0], one), -1, t[:, 1], one)
+        return out, ObjectState(new, state.box, state.height)
+
+
+@dataclass
+class RescaleConfig(Settings):
+    min_height: float = setting(0.02, "smallest object height", unit="m", gt=0)
+    max_height: float = setting(0.20, "largest object height", unit="m", gt=0)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.max_height < self.min_height:
+            raise ConfigError("max_height", self.max_height, f"must be >= min_height = {self.min_height:g} m")
+
+
+class Rescale(Augmentation):
+    """Rescale: object height ~ U[min_height, max_height], about the object's centre."""
+
+    name = "rescale"
+    Config = RescaleConfig
+
+    def apply(self, canvas, geometry, state):
+        target = _uniform(canvas.shape[0], self.config.min_height, self.config.max_height, canvas.device)
+        s = target / state.height
+        c = state.center
+        out = _resample_axis(_resample_axis(canvas, -2, c[:, 0] * (1 - s), s), -1, c[:, 1] * (1 - s), s)
+        return out, ObjectState(c, state.box * s[:, None], target)
+
+
+@dataclass
+class RotateConfig(Settings):
+    max_angle: float = setting(90.0, "rotation angle ~ U[-max_angle, max_angle], in degrees", unit="deg", ge=0, le=180)
+
+
+class Rotate(Augmentation):
+    """Rotate: angle ~ U[-90, 90] degrees about the object's centre (bilinear)."""
+
+    name = "rotate"
+    Config = RotateConfig
+
+    def apply(self, canvas, geometry, state):
+        B, dt = canvas.shape[0], canvas.dtype
+        angle = _uniform(B, -self.config.max_angle, self.config.max_angle, canvas.device)
+        center = (state.center.flip(1) - 0.5).to(dt)  # kornia: (x, y), pixel centres at integers
+        m = get_rotation_matrix2d(center, angle.to(dt), torch.ones(B, 2, dtype=dt, device=canvas.device))
+        out = warp_affine(canvas, m, tuple(canvas.shape[-2:]), align_corners=True).clamp_min(0)
+        c, s = torch.cos(torch.deg2rad(angle)).abs(), torch.sin(torch.deg2rad(angle)).abs()
+        h, w = state.box[:, 0], state.box[:, 1]
+        return out, ObjectState(state.center, torch.stack([h * c + w * s, h * s + w * c], 1), state.height)
+
+
+@dataclass
+class PerspectiveConfig(Settings):
+    distortion: float = setting(0.5, "corner displacement, as a fraction of the object's half size", ge=0, le=1)
+    p: float = setting(1.0, "probability of distorting an example", ge=0, le=1)
+
+
+class Perspective(Augmentation):
+    """Perspective: each corner of the object's box moves inward by up to distortion x half its size (kornia semantics)."""
+
+    name = "perspective"
+    Config = PerspectiveConfig
+
+    def apply(self, canvas, geometry, state):
+        B, dt, dev = canvas.shape[0], canvas.dtype, canvas.device
+        signs = torch.tensor([[1, 1], [-1, 1], [-1, -1], [1, -1]], dtype=torch.float64, device=dev)  # TL TR BR BL
+        half = state.box.flip(1)[:, None, :] / 2  # (B, 1, 2) as (x, y)
+        src = state.center.flip(1)[:, None, :] - 0.5 - signs * half
+        on = (torch.rand(B, device=dev) < self.config.p).double()[:, None, None]
+        shift = self.config.distortion * half * torch.rand(B, 4, 2, device=dev).double() * signs * on
+        m = get_perspective_transform(src, src + shift).to(dt)
+        out = warp_perspective(canvas, m, tuple(canvas.shape[-2:]), align_corners=True).clamp_min(0)
+        return torch.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0), state
+
+
+#: The built-in augmentations, registered by :mod:`optoenc.builtins`.
+BUILTIN = (Shift, Rescale, Rotate, Perspective)

@@ -1,0 +1,175 @@
+"""Object-plane augmentations: canvas placement, shapes, reproducibility and physical invariants."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from optoenc.augment import (
+    BUILTIN, Compose, Perspective, Rescale, Rotate, Shift, canvas_geometry, to_canvas,
+)
+from optoenc.errors import ConfigError
+
+# The paper's lensless setting, small: digit 12 cm (28 px), FOV 0.4712 x 0.6287 m.
+GEOM = canvas_geometry(0.12, (28, 28), 0.4712, 0.6287, min_pitch=1.227e-3)
+
+
+def _digits(b=6, seed=0):
+    """Digit-like scenes: random strokes on a zero background, a 2-px empty border (like MNIST)."""
+    g = torch.Generator().manual_seed(seed)
+    x = torch.zeros(b, 1, 28, 28)
+    x[..., 4:24, 6:22] = (torch.rand(b, 1, 20, 16, generator=g) > 0.6).float() * torch.rand(b, 1, 20, 16, generator=g)
+    return x
+
+
+def _extent(img, dim):
+    """Number of rows (dim=-2) or columns (dim=-1) holding any intensity, per example."""
+    other = -1 if dim == -2 else -2
+    return (img.sum(dim=(1, other)) > 1e-6).sum(-1).float()
+
+
+def test_canvas_geometry():
+    assert GEOM.pitch == pytest.approx(0.12 / 28)
+    assert GEOM.shape == (math.ceil(0.4712 / GEOM.pitch), math.ceil(0.6287 / GEOM.pitch)) == (110, 147)
+    assert GEOM.height >= 0.4712 and GEOM.height - 0.4712 < GEOM.pitch
+    fine = canvas_geometry(0.12, (28, 28), 3.77, 5.03, min_pitch=9.8e-3)  # coded aperture: grid-limited
+    assert fine.pitch == 9.8e-3 and fine.shape == (385, 514)
+    with pytest.raises(ConfigError, match="fov_height"):
+        canvas_geometry(0.12, (28, 28), 0.0, 1.0)
+
+
+def test_to_canvas_embeds_exactly_at_object_pitch():
+    x = _digits()
+    c = to_canvas(x, GEOM)
+    assert c.shape == (6, 1, 110, 147)
+    top, left, rows, cols = GEOM.object_box()
+    assert (rows, cols) == pytest.approx((28, 28)) and top == int(top) and left == int(left)
+    inner = c[..., int(top) : int(top) + 28, int(left) : int(left) + 28]
+    assert torch.equal(inner, x)
+    rest = c.clone()
+    rest[..., int(top) : int(top) + 28, int(left) : int(left) + 28] = 0
+    assert not rest.any()
+    # Centred to within half a pixel.
+    assert abs(top + 14 - 55) <= 0.5 and abs(left + 14 - 73.5) <= 0.5
+
+
+def test_to_canvas_area_resampling_preserves_intensity_integral():
+    coarse = canvas_geometry(0.12, (28, 28), 0.4712, 0.6287, min_pitch=0.12 / 28 * 2.5)
+    x = _digits()
+    c = to_canvas(x, coarse)
+    # Each canvas pixel averages the scene over its area: sum * pitch^2 is the physical integral.
+    ratio = c.sum((1, 2, 3)) * coarse.pitch**2 / (x.sum((1, 2, 3)) * (0.12 / 28) ** 2)
+    assert torch.allclose(ratio, torch.ones(6), atol=1e-5)
+    assert c.min() >= 0
+
+
+@pytest.mark.parametrize("cls", BUILTIN)
+def test_shapes_finite_reproducible_and_redrawn(cls):
+    c = to_canvas(_digits(), GEOM)
+    aug = cls()
+    torch.manual_seed(123)
+    a = aug(c, GEOM, 0.12)
+    torch.manual_seed(123)
+    b = aug(c, GEOM, 0.12)
+    nxt = aug(c, GEOM, 0.12)
+    assert a.shape == c.shape and a.dtype == c.dtype
+    assert torch.isfinite(a).all() and a.min() >= 0
+    assert torch.equal(a, b)
+    assert not torch.equal(a, nxt)
+    # Per-example parameters: the same digit twice in a batch is transformed differently.
+    twice = aug(c[:1].expand(2, -1, -1, -1).contiguous(), GEOM)
+    assert not torch.allclose(twice[0], twice[1])
+
+
+def test_registry_names_and_configs():
+    assert [cls.name for cls in BUILTIN] == ["shift", "rescale", "rotate", "perspective"]
+    for cls in BUILTIN:
+        assert cls.summary() and cls().config == cls.Config()
+    assert Rescale().config.min_height == 0.02 and Rescale().config.max_height == 0.20
+    assert Rotate().config.max_angle == 90.0
+    assert (Perspective().config.distortion, Perspective().config.p) == (0.5, 1.0)
+    with pytest.raises(ConfigError, match=r"augment\.rescale\.max_height"):
+        Rescale({"min_height": 0.1, "max_height": 0.05})
+    with pytest.raises(ConfigError, match=r"augment\.perspective\.distortion"):
+        Perspective({"distortion": 1.5})
+
+
+def test_shift_keeps_object_fully_visible():
+    # Shift is an exact area resampling with unit scale: it moves intensity, never creates or
+    # drops any, as long as the object stays on the canvas. So the sum is preserved to float
+    # rounding only if the whole object stayed in view.
+    c = to_canvas(_digits(32), GEOM)
+    torch.manual_seed(0)
+    out = Shift()(c, GEOM)
+    assert torch.allclose(out.sum((1, 2, 3)), c.sum((1, 2, 3)), rtol=1e-5)
+    # Positions spread over the field of view.
+    rows = (out.sum((1, 3)) * torch.arange(110.0)).sum(-1) / out.sum((1, 2, 3))
+    assert rows.max() - rows.min() > 40
+    # An object larger than the FOV (minus margin) is left where it is.
+    stuck = Shift({"margin": 0.3})(c, GEOM)
+    assert torch.allclose(stuck, c, atol=1e-6)
+
+
+def test_rescale_scales_sum_and_extent():
+    x = _digits()
+    c = to_canvas(x, GEOM)
+    for h in (0.06, 0.18):
+        out = Rescale({"min_height": h, "max_height": h})(c, GEOM, 0.12)
+        s = h / 0.12
+        # Area resampling: intensity per area unchanged, area x s^2 (object stays on the canvas).
+        assert torch.allclose(out.sum((1, 2, 3)), s**2 * c.sum((1, 2, 3)), rtol=1e-5)
+        assert torch.allclose(_extent(out, -2), s * _extent(c, -2), atol=2)
+    torch.manual_seed(0)
+    one = c[:1].expand(256, -1, -1, -1)
+    out = Rescale()(one, GEOM, 0.12)  # scale ~ U[1/6, 5/3]
+    mean_s2 = ((0.20**3 - 0.02**3) / (3 * (0.20 - 0.02))) / 0.12**2  # E[s^2]
+    ratio = out.sum((1, 2, 3)) / c[0].sum()
+    assert ratio.mean().item() == pytest.approx(mean_s2, rel=0.1)
+
+
+def test_rotate_preserves_intensity_and_isotropic_blob():
+    c = to_canvas(_digits(16), GEOM)
+    torch.manual_seed(0)
+    out = Rotate()(c, GEOM)
+    # Bilinear interpolation conserves the sum up to sampling error of the sharp strokes.
+    assert torch.allclose(out.sum((1, 2, 3)), c.sum((1, 2, 3)), rtol=0.05)
+    assert torch.allclose(Rotate({"max_angle": 0.0})(c, GEOM), c, atol=1e-5)
+    # A Gaussian centred on the object is invariant under rotation about the object's centre.
+    top, left, rows, cols = GEOM.object_box()
+    yy, xx = torch.meshgrid(torch.arange(110.0) + 0.5, torch.arange(147.0) + 0.5, indexing="ij")
+    blob = torch.exp(-((yy - top - rows / 2) ** 2 + (xx - left - cols / 2) ** 2) / (2 * 5.0**2))
+    blob = blob.expand(4, 1, -1, -1).contiguous()
+    out = Rotate()(blob, GEOM)
+    assert torch.allclose(out, blob, atol=1e-2)  # bilinear smoothing at the peak: ~f''/8
+    for dim in (-2, -1):
+        pos = torch.arange(blob.shape[dim], dtype=torch.float32) + 0.5
+        other = -1 if dim == -2 else -2
+        centroid = lambda im: (im.sum((1, other)) * pos).sum(-1) / im.sum((1, 2, 3))
+        assert torch.allclose(centroid(out), centroid(blob), atol=1e-3)
+
+
+def test_perspective_shrinks_inside_object_box():
+    c = to_canvas(_digits(16), GEOM)
+    torch.manual_seed(0)
+    out = Perspective()(c, GEOM)
+    assert torch.isfinite(out).all() and out.min() >= 0
+    # Corners move inward: the content stays within the object's box and loses area.
+    top, left, rows, cols = GEOM.object_box()
+    box = torch.zeros_like(c, dtype=torch.bool)
+    box[..., int(top) - 1 : int(top) + 29, int(left) - 1 : int(left) + 29] = True
+    assert out[~box].abs().max() < 1e-6
+    assert (out.sum((1, 2, 3)) < c.sum((1, 2, 3))).all()
+    assert torch.allclose(Perspective({"p": 0.0})(c, GEOM), c, atol=1e-4)
+
+
+def test_compose_keeps_rescaled_object_in_view():
+    c = to_canvas(_digits(32), GEOM)
+    torch.manual_seed(1)
+    big = Compose([Rescale({"min_height": 0.2, "max_height": 0.2}), Shift()])(c, GEOM)
+    s = 0.2 / 0.12
+    assert torch.allclose(big.sum((1, 2, 3)), s**2 * c.sum((1, 2, 3)), rtol=1e-5)
+    torch.manual_seed(1)
+    allfour = Compose([cls() for cls in BUILTIN])(c, GEOM)
+    assert allfour.shape == c.shape and torch.isfinite(allfour).all() and allfour.min() >= 0
