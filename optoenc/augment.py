@@ -84,7 +84,9 @@ def canvas_geometry(
             raise ConfigError(key, v, "must be > 0 m")
     h, w = (int(s) for s in scene_shape)
     pitch = max(object_height / h, float(min_pitch))
-    shape = (max(1, math.ceil(fov_height / pitch - 1e-9)), max(1, math.ceil(fov_width / pitch - 1e-9)))
+    # Whole canvas pixels inside the field of view (floor): the canvas never
+    # reaches past the sensor, so nothing placed on it is cropped.
+    shape = (max(1, math.floor(fov_height / pitch + 1e-9)), max(1, math.floor(fov_width / pitch + 1e-9)))
     return CanvasGeometry(shape, pitch, float(object_height), object_height * w / h, (float(fov_height), float(fov_width)))
 
 

@@ -68,12 +68,11 @@ class EncoderClassifier(L.LightningModule):
         if self.precomputed:
             return x
         if len(self.augmentations) and augment:
-            from .augment import to_canvas
+            from .augment import Compose, to_canvas
 
             canvas = to_canvas(x, self.canvas)
-            height = self.encoder.scene_config.object_height
-            for aug in self.augmentations:
-                canvas = aug(canvas, self.canvas, height)
+            # Compose tracks each object's position and size from one transform to the next.
+            canvas = Compose(list(self.augmentations))(canvas, self.canvas, self.encoder.scene_config.object_height)
             return self.encoder.measure(canvas, height=self.canvas.height)
         return self.encoder.measure(x)
 

@@ -32,10 +32,11 @@ def _extent(img, dim):
 
 def test_canvas_geometry():
     assert GEOM.pitch == pytest.approx(0.12 / 28)
-    assert GEOM.shape == (math.ceil(0.4712 / GEOM.pitch), math.ceil(0.6287 / GEOM.pitch)) == (110, 147)
-    assert GEOM.height >= 0.4712 and GEOM.height - 0.4712 < GEOM.pitch
+    # floor: the canvas never reaches past the field of view (nothing gets cropped by the sensor)
+    assert GEOM.shape == (math.floor(0.4712 / GEOM.pitch), math.floor(0.6287 / GEOM.pitch)) == (109, 146)
+    assert GEOM.height <= 0.4712 and 0.4712 - GEOM.height < GEOM.pitch
     fine = canvas_geometry(0.12, (28, 28), 3.77, 5.03, min_pitch=9.8e-3)  # coded aperture: grid-limited
-    assert fine.pitch == 9.8e-3 and fine.shape == (385, 514)
+    assert fine.pitch == 9.8e-3 and fine.shape == (384, 513)
     with pytest.raises(ConfigError, match="fov_height"):
         canvas_geometry(0.12, (28, 28), 0.0, 1.0)
 
@@ -43,7 +44,7 @@ def test_canvas_geometry():
 def test_to_canvas_embeds_exactly_at_object_pitch():
     x = _digits()
     c = to_canvas(x, GEOM)
-    assert c.shape == (6, 1, 110, 147)
+    assert c.shape == (6, 1, 109, 146)
     top, left, rows, cols = GEOM.object_box()
     assert (rows, cols) == pytest.approx((28, 28)) and top == int(top) and left == int(left)
     inner = c[..., int(top) : int(top) + 28, int(left) : int(left) + 28]
@@ -52,7 +53,7 @@ def test_to_canvas_embeds_exactly_at_object_pitch():
     rest[..., int(top) : int(top) + 28, int(left) : int(left) + 28] = 0
     assert not rest.any()
     # Centred to within half a pixel.
-    assert abs(top + 14 - 55) <= 0.5 and abs(left + 14 - 73.5) <= 0.5
+    assert abs(top + 14 - 54.5) <= 0.5 and abs(left + 14 - 73) <= 0.5
 
 
 def test_to_canvas_area_resampling_preserves_intensity_integral():
@@ -105,7 +106,7 @@ def test_shift_keeps_object_fully_visible():
     out = Shift()(c, GEOM)
     assert torch.allclose(out.sum((1, 2, 3)), c.sum((1, 2, 3)), rtol=1e-5)
     # Positions spread over the field of view.
-    rows = (out.sum((1, 3)) * torch.arange(110.0)).sum(-1) / out.sum((1, 2, 3))
+    rows = (out.sum((1, 3)) * torch.arange(109.0)).sum(-1) / out.sum((1, 2, 3))
     assert rows.max() - rows.min() > 40
     # An object larger than the FOV (minus margin) is left where it is.
     stuck = Shift({"margin": 0.3})(c, GEOM)
@@ -138,7 +139,7 @@ def test_rotate_preserves_intensity_and_isotropic_blob():
     assert torch.allclose(Rotate({"max_angle": 0.0})(c, GEOM), c, atol=1e-5)
     # A Gaussian centred on the object is invariant under rotation about the object's centre.
     top, left, rows, cols = GEOM.object_box()
-    yy, xx = torch.meshgrid(torch.arange(110.0) + 0.5, torch.arange(147.0) + 0.5, indexing="ij")
+    yy, xx = torch.meshgrid(torch.arange(109.0) + 0.5, torch.arange(146.0) + 0.5, indexing="ij")
     blob = torch.exp(-((yy - top - rows / 2) ** 2 + (xx - left - cols / 2) ** 2) / (2 * 5.0**2))
     blob = blob.expand(4, 1, -1, -1).contiguous()
     out = Rotate()(blob, GEOM)
