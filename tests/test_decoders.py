@@ -1,0 +1,52 @@
+"""Decoders follow REFERENCE §3 exactly and emit logits."""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from optoenc.decoders import FCNN, Logistic
+from optoenc.plugins import get_registry
+
+
+def test_logistic_is_one_linear_layer():
+    d = Logistic(in_shape=(1, 24, 32), num_classes=10)
+    linears = [m for m in d.head.modules() if isinstance(m, nn.Linear)]
+    assert len(linears) == 1 and linears[0].in_features == 768 and linears[0].out_features == 10
+
+
+def test_fcnn_architecture():
+    d = FCNN(in_shape=(1, 12, 16), num_classes=10)
+    layers = list(d.head)
+    assert isinstance(layers[0], nn.Linear) and layers[0].in_features == 192 and layers[0].out_features == 800
+    assert layers[0].bias is None  # no bias before BatchNorm
+    assert isinstance(layers[1], nn.BatchNorm1d) and isinstance(layers[2], nn.ReLU)
+    assert isinstance(layers[3], nn.Linear) and layers[3].out_features == 10
+
+
+def test_logits_not_probabilities():
+    torch.manual_seed(0)
+    d = Logistic(in_shape=(1, 3, 4), num_classes=10, learnable_encoder=False).eval()
+    out = d(torch.randn(5, 1, 3, 4) * 10)
+    assert not torch.allclose(out.exp().sum(1), torch.ones(5))  # no softmax inside
+    assert (out < 0).any()
+
+
+def test_embedding_norm_auto_follows_the_encoder():
+    assert FCNN(in_shape=(1, 3, 4), learnable_encoder=True).norm_kind == "batchnorm_relu"
+    assert FCNN(in_shape=(1, 3, 4), learnable_encoder=False).norm_kind == "standardize"
+    assert FCNN({"embedding_norm": "none"}, in_shape=(1, 3, 4), learnable_encoder=True).norm_kind == "none"
+
+
+def test_standardize_uses_training_statistics():
+    d = Logistic(in_shape=(1, 2, 2), learnable_encoder=False)
+    d.set_statistics(5.0, 2.0)
+    with torch.no_grad():
+        d.head.weight.copy_(torch.eye(10, 4))
+        d.head.bias.zero_()
+    out = d(torch.full((1, 1, 2, 2), 7.0))
+    torch.testing.assert_close(out[0, :4], torch.ones(4))  # (7 - 5) / 2
+
+
+def test_registry_lists_both():
+    assert {"logistic", "fcnn"} <= set(get_registry("decoder").names())
