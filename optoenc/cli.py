@@ -77,9 +77,29 @@ def _parser() -> argparse.ArgumentParser:
     ex.add_argument("--run", required=True, metavar="RUN_DIR", help="run directory written by `optoenc fit`")
     ex.add_argument("--which", default="best", choices=("best", "last"), help="checkpoint")
     ex.add_argument("--out", required=True, metavar="FILE.png")
-    b = sub.add_parser("bench", help="benchmarks (speed and accuracy, side by side)")
-    b.add_argument("what", nargs="?", default="optics", choices=("optics",), help="which benchmark")
+    b = sub.add_parser(
+        "bench",
+        help="benchmarks (speed and accuracy, side by side)",
+        description="fidelity (default): the paper pipeline, the presets and a sweep of each knob against a "
+        "high-fidelity reference; auto: the cheapest measured setting meeting --tolerance; optics: PSF timings.",
+    )
+    b.add_argument("what", nargs="?", default="fidelity", choices=("fidelity", "auto", "optics"), help="which benchmark")
     b.add_argument("--out", metavar="DIR", help="also write CSV/PNG here")
+    b.add_argument("--encoders", metavar="A,B", help="comma-separated encoders (default: every built-in)")
+    b.add_argument("--presets", metavar="A,B", help="comma-separated presets (default: reference,default,fast)")
+    b.add_argument("--digits", type=int, default=256, help="test digits the embedding error is measured on")
+    b.add_argument("--sweep", action=argparse.BooleanOptionalAction, default=True, help="sweep each knob alone")
+    b.add_argument("--paper", action=argparse.BooleanOptionalAction, default=True, help="run the paper pipeline")
+    b.add_argument("--hifi-grid", default="1536x2048", metavar="HxW", help="grid of the high-fidelity reference")
+    b.add_argument("--hifi-padding", default="1.0", help="padding of the high-fidelity reference")
+    b.add_argument("--paper-grid", default="380x507", metavar="HxW", help="grid of the paper pipeline")
+    b.add_argument("--encode-count", type=int, default=10000, help="digits encoded for the fixed encoders' encode time")
+    b.add_argument("--encode-all", action=argparse.BooleanOptionalAction, default=True,
+                   help="also time encoding all 70,000 MNIST digits with fixed_slm, cache cold")
+    b.add_argument("--encoder", help="auto: the encoder to choose a setting for")
+    b.add_argument("--tolerance", type=float, default=0.01, help="auto: largest relative embedding error (0.01 = 1%%)")
+    b.add_argument("--safety", type=float, default=1.0, help="auto: require error * safety <= tolerance")
+    b.add_argument("--from-csv", metavar="CSV", help="auto: choose among the rows of a CSV of `optoenc bench --out`")
     return p
 
 
@@ -234,10 +254,83 @@ def cmd_simulate(args, extra) -> int:
 
 
 def cmd_bench(args, extra) -> int:
-    from . import bench_optics
+    if args.what == "optics":
+        from . import bench_optics
 
-    rows = bench_optics.run()
-    print(bench_optics.format_table(rows))
+        rows = bench_optics.run()
+        print(bench_optics.format_table(rows))
+        return 0
+
+    from tqdm.auto import tqdm
+
+    from . import bench
+
+    def grid(key: str, text: str) -> tuple[int, int]:
+        try:
+            h, w = (int(v) for v in text.lower().split("x"))
+            if h >= 1 and w >= 1:
+                return h, w
+        except ValueError:
+            pass
+        raise ConfigError(key, text, "must be HxW with positive integers, e.g. 1536x2048")
+
+    names = lambda text: [v.strip() for v in text.split(",") if v.strip()]  # noqa: E731
+    kw = dict(
+        presets=names(args.presets) if args.presets else bench.PRESETS,
+        digits=args.digits,
+        sweep=args.sweep,
+        hifi_grid=grid("--hifi-grid", args.hifi_grid),
+        hifi_padding=args.hifi_padding,
+        paper_grid=grid("--paper-grid", args.paper_grid),
+        encode_count=args.encode_count,
+    )
+    bar = tqdm(total=1, desc="bench", unit="setting", file=sys.stderr, disable=None, leave=False)
+
+    def progress(done: int, total: int, what: str) -> None:
+        bar.total = total
+        bar.n = done
+        bar.set_description(what)
+        bar.refresh()
+
+    if args.what == "auto":
+        if not args.encoder:
+            raise ConfigError("--encoder", None, "required by `optoenc bench auto` (e.g. --encoder learned_slm)")
+        kw.pop("paper_grid")
+        with bar:
+            choice = bench.auto_select(
+                args.encoder, args.tolerance, args.from_csv, safety=args.safety, progress=progress,
+                **({} if args.from_csv else kw),
+            )
+        f = choice.fidelity.resolved()
+        print(f"auto {args.encoder} @ tolerance {100 * args.tolerance:g}%: {choice.describe()}")
+        print(f"  --fidelity.preset={choice.fidelity.preset} --fidelity.grid={list(f['grid'])} "
+              f"--fidelity.dtype={f['dtype']} --fidelity.padding={f['padding']}")
+        print(f"  ({choice.considered} measured settings considered; rejected by the sampling diagnostics: "
+              f"{', '.join(choice.rejected) or 'none'})")
+        return 0
+
+    encoders = names(args.encoders) if args.encoders else bench.ENCODERS
+    everything = None
+    if args.encode_all:
+        everything = bench.encode_all()  # first: everything cold
+    with bar:
+        rows = bench.run(encoders, paper=args.paper, progress=progress, **kw)
+    autos = {}
+    for enc in encoders:
+        try:
+            autos[enc] = bench.choose(rows, enc, args.tolerance, args.safety)
+        except ConfigError as err:
+            autos[enc] = err.allowed
+    print(bench.format_table(rows))
+    if args.sweep:
+        print("\nEach knob alone from `default` (cost: learned encoders per training step, fixed per 10,000 digits):")
+        print(bench.format_sweep(rows))
+    print()
+    print(bench.format_outcomes(bench.outcomes(rows, everything, autos)))
+    if args.out:
+        out = Path(args.out)
+        print(bench.write_csv(rows, out / "bench.csv"))
+        print(bench.save_pareto(rows, out / "pareto.png"))
     return 0
 
 

@@ -1,0 +1,212 @@
+"""The fidelity benchmark (``optoenc bench``): fast checks on tiny grids; the full run is a command, not a test."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from optoenc import bench
+from optoenc.bench import pipeline
+from optoenc.bench.auto import auto_fidelity, choose
+from optoenc.bench.report import format_outcomes, format_sweep, format_table, outcomes, read_csv, write_csv
+from optoenc.cli import main
+from optoenc.errors import ConfigError
+from optoenc.geometry import FIDELITY_PRESETS
+
+# Tiny grids alias the spherical wave: expected here, and recorded by the benchmark in its rows.
+pytestmark = pytest.mark.filterwarnings("ignore::optoenc.optics.diagnostics.SamplingWarning")
+
+TINY = pipeline.Setting("tiny", "paper", (48, 64), "float32", "0.5")
+
+
+def _scenes(n=6, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    return torch.rand(n, 1, 28, 28, generator=g)
+
+
+# ----------------------------------------------------------------------------- settings
+
+
+def test_paper_setting_is_the_papers_grid_with_a_2x_window():
+    s = pipeline.paper_setting()
+    assert (s.grid, s.dtype, s.method) == ((380, 507), "float32", "direct")
+    enc = pipeline.build_encoder("fixed_slm", s)
+    pad = enc.fidelity_padding()  # per side: a 2x window in each axis
+    assert all(2 * p + n >= 2 * n for p, n in zip(pad, s.grid))
+
+
+def test_hifi_is_twice_as_fine_as_every_preset_in_float64():
+    h = pipeline.hifi_setting()
+    assert h.dtype == "float64" and float(h.padding) >= 0.5
+    for p in FIDELITY_PRESETS.values():
+        assert all(hn >= 2 * pn for hn, pn in zip(h.grid, p["grid"]))
+
+
+def test_sweep_moves_one_knob_at_a_time_from_default():
+    base = pipeline.preset_setting("default")
+    for name in ("coded_aperture", "lens"):
+        pts = pipeline.sweep_settings(name)
+        for s in pts:
+            diff = [k for k in ("grid", "dtype", "padding", "wavelengths") if getattr(s, k) != getattr(base, k)]
+            assert diff == [s.knob], (name, s)
+        knobs = {s.knob for s in pts}
+        assert {"grid", "dtype"} <= knobs
+        # Padding and the spectral model only exist for propagated (mask) PSFs.
+        assert ({"padding", "wavelengths"} <= knobs) == (name == "coded_aperture")
+
+
+# ----------------------------------------------------------------------------- the paper pipeline
+
+
+@pytest.mark.parametrize("name", ["coded_aperture", "learned_slm", "diffuser"])
+def test_paper_pipeline_is_the_direct_path_and_matches_the_operator(name):
+    enc = pipeline.build_encoder(name, TINY)
+    x = _scenes()
+    with torch.no_grad():
+        paper = pipeline.paper_forward(enc, x, noise=False)
+        direct = enc.measure(x, method="direct")
+        op = enc.measure(x, method="operator")
+    assert torch.equal(paper, direct)
+    # The documented differences from the default path are the grid, padding and FFT; on one grid the
+    # exact scene operator and the per-example FFT convolution agree to float32 rounding.
+    assert pipeline.relative_error(op, direct) < 1e-4
+
+
+def test_paper_pipeline_recomputes_the_psf_every_step():
+    enc = pipeline.build_encoder("fixed_slm", TINY)
+    calls = []
+    orig = enc.compute_psf
+    enc.compute_psf = lambda: calls.append(1) or orig()
+    x = _scenes(2)
+    with torch.no_grad():
+        enc(x)
+        enc(x)
+        assert len(calls) == 1  # optoenc's path: cached while nothing changes
+        pipeline.paper_forward(enc, x)
+        pipeline.paper_forward(enc, x)
+    assert len(calls) == 3
+
+
+def test_one_wavelength_point_propagates_550nm_only():
+    s3 = pipeline.Setting("t", "sweep", (48, 64), "float64", "auto")
+    s1 = pipeline.Setting("t", "sweep", (48, 64), "float64", "auto", wavelengths=1)
+    with torch.no_grad():
+        p3 = pipeline.build_encoder("coded_aperture", s3).psf()
+        p1 = pipeline.build_encoder("coded_aperture", s1).psf()
+    assert p1.shape == p3.shape and torch.isfinite(p1).all()
+    assert pipeline.relative_error(p1, p3) > 1e-6
+    with pytest.raises(ConfigError):
+        pipeline.build_encoder("diffuser", s1)
+
+
+def test_sampling_flags_wraparound_without_padding():
+    s0 = pipeline.Setting("p0", "sweep", (48, 64), "float32", "0")
+    ok0, why0 = pipeline.sampling(pipeline.build_encoder("fixed_slm", s0), s0)
+    assert not ok0 and "wraparound" in why0
+    assert pipeline.sampling(pipeline.build_encoder("diffuser", s0), s0) == (True, "")
+
+
+def test_run_tiny_rows():
+    rows = pipeline.run(["learned_slm"], ["fast"], digits=4, sweep=False, hifi_grid=(96, 128),
+                        paper_grid=(48, 64), encode_count=50, steps=1, batch=16)
+    kinds = [r["kind"] for r in rows]
+    assert kinds == ["hifi", "paper", "preset"]
+    hifi, paper, fast = rows
+    assert hifi["error"] == 0 and hifi["psf_s"] > 0
+    for r in (paper, fast):
+        assert 0 < r["error"] < 1 and r["step_s"] > 0 and r["encode_s"] is None and r["cost_s"] == r["step_s"]
+    assert math.isclose(fast["step_speedup"], paper["step_s"] / fast["step_s"])
+    assert "learned_slm" in format_table(rows)
+
+
+# ----------------------------------------------------------------------------- auto
+
+
+def _row(setting, error, cost, kind="sweep", ok=True, wavelengths=3, grid=(192, 256), dtype="float32",
+         padding="auto", encoder="learned_slm"):
+    return {
+        "encoder": encoder, "setting": setting, "kind": kind, "knob": "", "value": "", "grid": grid,
+        "dtype": dtype, "padding": padding, "wavelengths": wavelengths, "method": "operator", "learnable": True,
+        "error": error, "step_s": cost, "encode_s": None, "encode_estimated": False, "psf_s": None,
+        "cost_s": cost, "step_speedup": None, "encode_speedup": None, "sampling_ok": ok,
+        "sampling": "" if ok else "wraparound",
+    }  # fmt: skip
+
+
+FAKE = [
+    _row("hifi", 0.0, 30.0, kind="hifi", grid=(1536, 2048), dtype="float64", padding="1.0"),
+    _row("paper", 0.002, 0.001, kind="paper", grid=(380, 507), padding="0.5"),  # excluded: not the default path
+    _row("fast", 0.03, 0.02, kind="preset"),  # cheapest, too inaccurate
+    _row("padding=0", 0.004, 0.025, ok=False, grid=(384, 512), padding="0"),  # meets it, but wraps around
+    _row("wavelengths=1", 0.005, 0.026, grid=(384, 512), wavelengths=1),  # not a fidelity knob
+    _row("grid=576x768", 0.009, 0.08, grid=(576, 768)),  # the answer at 1 %
+    _row("default", 0.02, 0.04, kind="preset", grid=(384, 512)),
+    _row("reference", 0.003, 2.0, kind="preset", grid=(768, 1024), dtype="float64", padding="1.0"),
+    _row("fast", 0.0001, 0.001, kind="preset", encoder="diffuser"),  # another encoder
+]
+
+
+def test_auto_picks_the_cheapest_reliable_setting_meeting_the_tolerance():
+    c = choose(FAKE, "learned_slm", 0.01)
+    assert c.row["setting"] == "grid=576x768"
+    assert c.fidelity.resolved() == {"grid": (576, 768), "dtype": "float32", "padding": "auto"}
+    assert any("padding=0" in r for r in c.rejected)
+    assert choose(FAKE, "learned_slm", 0.005).fidelity.preset == "reference"
+    assert choose(FAKE, "learned_slm", 0.05).row["setting"] == "fast"
+    # A safety factor asks for margin: 0.009 * 2 > 0.01.
+    assert choose(FAKE, "learned_slm", 0.01, safety=2.0).row["setting"] == "reference"
+    with pytest.raises(ConfigError, match="most accurate is reference"):
+        choose(FAKE, "learned_slm", 0.001)
+    with pytest.raises(ConfigError):
+        choose(FAKE, "lens", 0.01)
+
+
+def test_auto_from_csv_and_cli(tmp_path, capsys):
+    path = write_csv(FAKE, tmp_path / "bench.csv")
+    back = read_csv(path)
+    assert [r["setting"] for r in back] == [r["setting"] for r in FAKE]
+    assert back[5]["grid"] == (576, 768) and back[3]["sampling_ok"] is False and back[0]["encode_s"] is None
+    assert auto_fidelity("learned_slm", 0.01, path).resolved()["grid"] == (576, 768)
+    assert main(["bench", "auto", "--encoder", "learned_slm", "--tolerance", "0.01", "--from-csv", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "grid=576x768" in out and "0.900%" in out and "--fidelity.grid=[576, 768]" in out
+
+
+def test_outcomes_and_tables_render():
+    rows = [dict(r) for r in FAKE]
+    text = format_outcomes(outcomes(rows, auto={"learned_slm": choose(rows, "learned_slm", 0.01)}))
+    assert "[ok]" in text and "reference within 0.5%" in text and "fast error" in text
+    assert "grid=576x768" not in format_table(rows)  # sweep points go to the sweep table
+    assert "0.900%" in format_sweep(rows) and "0.45" in format_sweep(rows)  # its error, and x default
+
+
+# ----------------------------------------------------------------------------- the command
+
+
+def test_cli_bench_tiny(tmp_path, capsys):
+    rc = main(["bench", "--encoders", "diffuser", "--presets", "fast", "--digits", "8", "--hifi-grid", "96x128",
+               "--paper-grid", "48x64", "--encode-count", "100", "--no-sweep", "--no-encode-all",
+               "--out", str(tmp_path)])
+    assert rc == 0
+    out = capsys.readouterr().out
+    for word in ("diffuser", "hifi", "paper", "fast", "error vs hi-fi", "auto diffuser"):
+        assert word in out
+    assert (tmp_path / "bench.csv").stat().st_size > 0
+    assert (tmp_path / "pareto.png").read_bytes()[:4] == b"\x89PNG"
+    assert [r["kind"] for r in read_csv(tmp_path / "bench.csv")] == ["hifi", "paper", "preset"]
+
+
+def test_cli_bench_bad_input(capsys):
+    assert main(["bench", "--hifi-grid", "12by3"]) == 2
+    assert main(["bench", "auto"]) == 2
+    err = capsys.readouterr().err
+    assert "--hifi-grid" in err and "--encoder" in err
+
+
+@pytest.mark.slow
+def test_encode_all_mnist_cold_under_30s():
+    res = bench.encode_all("fixed_slm", "default")
+    assert res["count"] == 70_000 and res["shape"] == (1, 24, 32) and not res["cache_hit"]
+    assert res["seconds"] < 30
