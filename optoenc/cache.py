@@ -57,7 +57,7 @@ def embedding_key(encoder, dataset_config: Any, dataset_token: str = "") -> str:
         "encoder_config": to_dict(encoder.config),
         "scene": to_dict(encoder.scene_config),
         "sensor": to_dict(encoder.sensor),
-        "fidelity": encoder.fidelity.resolved(),
+        "fidelity": encoder.knobs,
         "dataset": to_dict(dataset_config),
         "dataset_token": dataset_token,
         "encoder_token": token,

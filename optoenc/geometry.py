@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Optional
+from typing import Mapping, Optional
 
 from . import devices
 from .errors import ConfigError
@@ -49,9 +49,9 @@ class SensorConfig(Settings):
 
 #: Named fidelity presets: the one table of their values (docs list it).
 FIDELITY_PRESETS: dict[str, dict] = {
-    "reference": {"grid": (768, 1024), "dtype": "float64", "padding": "1.0"},
-    "default": {"grid": (384, 512), "dtype": "float32", "padding": "auto"},
-    "fast": {"grid": (192, 256), "dtype": "float32", "padding": "auto"},
+    "reference": {"grid": (768, 1024), "dtype": "float64", "padding": "1.0", "psf_oversample": 1},
+    "default": {"grid": (384, 512), "dtype": "float32", "padding": "auto", "psf_oversample": 1},
+    "fast": {"grid": (192, 256), "dtype": "float32", "padding": "auto", "psf_oversample": 1},
 }
 
 
@@ -71,6 +71,14 @@ class FidelityConfig(Settings):
         "so nothing wraps around) or a fraction of the grid such as 0.5",
     )
 
+    psf_oversample: Optional[int] = setting(
+        None,
+        "simulated PSFs: the wave field is computed on a grid this many times finer per axis and its "
+        "intensity integrated over each grid pixel (anti-aliased PSF; cost grows as its square)",
+        ge=1,
+        le=8,
+    )
+
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.padding is not None and self.padding != "auto":
@@ -81,9 +89,16 @@ class FidelityConfig(Settings):
             if not ok:
                 raise ConfigError("padding", self.padding, "must be 'auto' or a fraction >= 0 of the grid")
 
-    def resolved(self) -> dict:
-        """The knob values after filling the nulls from the preset."""
+    def resolved(self, overrides: Mapping[str, Mapping] | None = None) -> dict:
+        """The knob values after filling the nulls from the preset.
+
+        Args:
+            overrides: an encoder's measured per-preset values
+                (``OpticalEncoder.fidelity_presets``), applied over the
+                shared preset table and under explicitly set knobs.
+        """
         out = dict(FIDELITY_PRESETS[self.preset])
+        out.update((overrides or {}).get(self.preset, {}))
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
             if f.name != "preset" and v is not None:
@@ -100,8 +115,8 @@ class Geometry:
     embedding: tuple[int, int]
 
     @classmethod
-    def of(cls, sensor: SensorConfig, fidelity: FidelityConfig) -> "Geometry":
-        grid = tuple(int(g) for g in fidelity.resolved()["grid"])
+    def of(cls, sensor: SensorConfig, fidelity: FidelityConfig, overrides: Mapping | None = None) -> "Geometry":
+        grid = tuple(int(g) for g in fidelity.resolved(overrides)["grid"])
         h, w = sensor.size
         emb = tuple(int(e) for e in sensor.embedding)
         for axis, (e, g) in enumerate(zip(emb, grid)):

@@ -40,6 +40,8 @@ __all__ = [
     "place",
     "fft_convolve",
     "integrate",
+    "cell_blur",
+    "sensor_matrix",
     "correlation_tensor",
     "scene_operator",
     "apply_operator",
@@ -83,12 +85,36 @@ def box_matrix(n_grid: int, n_out: int, dtype=torch.float64) -> torch.Tensor:
     return m / m.sum(dim=1, keepdim=True)
 
 
+def cell_blur(n: int, dtype=torch.float64) -> torch.Tensor:
+    """``(n, n)`` tridiagonal ``[1/8, 3/4, 1/8]``: the piecewise-constant cell model.
+
+    When a scene and a PSF are both represented by their averages over the
+    grid cells (piecewise-constant functions), the exact pixel-integrated
+    continuous convolution is the discrete convolution followed by this kernel
+    along each axis (the box-box autocorrelation, a triangle, integrated over
+    a cell: 1/8, 3/4, 1/8). Without it the grid values act as point masses
+    at the cell centres, a first-order error in the grid pitch.
+    """
+    m = torch.eye(n, dtype=dtype) * 0.75
+    if n > 1:
+        off = torch.full((n - 1,), 0.125, dtype=dtype)
+        m = m + torch.diag(off, 1) + torch.diag(off, -1)
+    return m
+
+
+def sensor_matrix(n_grid: int, n_out: int, cells: bool = True, dtype=torch.float64) -> torch.Tensor:
+    """Pixel integration along one axis, with the piecewise-constant cell model when ``cells``."""
+    box = box_matrix(n_grid, n_out, dtype)
+    return box @ cell_blur(n_grid, dtype) if cells else box
+
+
 def placement_matrices(
     scene_shape: tuple[int, int],
     grid_shape: tuple[int, int],
     height_px: float,
     invert: bool = True,
     dtype=torch.float64,
+    pixel_aspect: float = 1.0,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Row and column matrices placing an ``(h, w)`` scene centred on the grid.
 
@@ -98,13 +124,15 @@ def placement_matrices(
         height_px: the scene's height on the grid, in grid pixels (may be
             fractional); the width follows from the aspect ratio.
         invert: flip both axes (the image of a camera is inverted, M < 0).
+        pixel_aspect: grid pixel height / width (``dy / dx``); the scene keeps
+            its physical aspect ratio on grids with non-square pixels.
 
     Returns:
         ``(Py, Px)`` with shapes ``(H, h)`` and ``(W, w)``; the placed scene
         is ``Py @ scene @ Px.T``.
     """
     (h, w), (H, W) = scene_shape, grid_shape
-    width_px = height_px * w / h
+    width_px = height_px * (w / h) * pixel_aspect
     if height_px > H or width_px > W:
         warnings.warn(
             f"the object ({height_px:.1f} x {width_px:.1f} grid px) is larger than the field of view "
@@ -118,9 +146,11 @@ def placement_matrices(
     return py, px
 
 
-def place(scene: torch.Tensor, grid_shape: tuple[int, int], height_px: float, invert: bool = True) -> torch.Tensor:
+def place(
+    scene: torch.Tensor, grid_shape: tuple[int, int], height_px: float, invert: bool = True, pixel_aspect: float = 1.0
+) -> torch.Tensor:
     """Place a ``(..., h, w)`` scene on an ``(..., H, W)`` grid (see :func:`placement_matrices`)."""
-    py, px = placement_matrices(tuple(scene.shape[-2:]), grid_shape, height_px, invert)
+    py, px = placement_matrices(tuple(scene.shape[-2:]), grid_shape, height_px, invert, pixel_aspect=pixel_aspect)
     py, px = py.to(scene.dtype), px.to(scene.dtype)
     return py @ scene @ px.T
 
@@ -156,11 +186,14 @@ def fft_convolve(image: torch.Tensor, psf: torch.Tensor) -> torch.Tensor:
     return full[..., Hp // 2 : Hp // 2 + H, Wp // 2 : Wp // 2 + W]
 
 
-def integrate(image: torch.Tensor, out_shape: tuple[int, int]) -> torch.Tensor:
-    """Pixel integration: average ``(..., H, W)`` over the ``out_shape`` sensor pixels."""
+def integrate(image: torch.Tensor, out_shape: tuple[int, int], cells: bool = False) -> torch.Tensor:
+    """Pixel integration: average ``(..., H, W)`` over the ``out_shape`` sensor pixels.
+
+    ``cells=True`` first applies the piecewise-constant cell model (:func:`cell_blur`).
+    """
     H, W = image.shape[-2:]
-    sy = box_matrix(H, out_shape[0]).to(image.dtype)
-    sx = box_matrix(W, out_shape[1]).to(image.dtype)
+    sy = sensor_matrix(H, out_shape[0], cells).to(image.dtype)
+    sx = sensor_matrix(W, out_shape[1], cells).to(image.dtype)
     return sy @ image @ sx.T
 
 

@@ -205,7 +205,7 @@ def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> di
         "best_epoch": _best_epoch(trainer),
         "val_acc": best_val,
         "test_acc": float(test[0]["test_acc"]) if test else float("nan"),
-        "fidelity": run.fidelity.resolved(),
+        "fidelity": parts.module.encoder.knobs,
         "wall_time_s": round(time.time() - start, 2),
         "encoder": to_dict(run.encoder),
         "scene": to_dict(run.scene),

@@ -45,16 +45,17 @@ def test_hifi_is_twice_as_fine_as_every_preset_in_float64():
 
 
 def test_sweep_moves_one_knob_at_a_time_from_default():
-    base = pipeline.preset_setting("default")
-    for name in ("coded_aperture", "lens"):
+    for name in ("coded_aperture", "lens", "fixed_slm"):
+        base = pipeline.preset_setting("default", name)  # with the encoder's own measured overrides
         pts = pipeline.sweep_settings(name)
         for s in pts:
-            diff = [k for k in ("grid", "dtype", "padding", "wavelengths") if getattr(s, k) != getattr(base, k)]
+            diff = [k for k in ("grid", "dtype", "padding", "wavelengths", "oversample") if getattr(s, k) != getattr(base, k)]
+            diff = ["psf_oversample" if k == "oversample" else k for k in diff]
             assert diff == [s.knob], (name, s)
         knobs = {s.knob for s in pts}
         assert {"grid", "dtype"} <= knobs
         # Padding and the spectral model only exist for propagated (mask) PSFs.
-        assert ({"padding", "wavelengths"} <= knobs) == (name == "coded_aperture")
+        assert ({"padding", "wavelengths", "psf_oversample"} <= knobs) == (name != "lens")
 
 
 # ----------------------------------------------------------------------------- the paper pipeline
@@ -151,7 +152,7 @@ FAKE = [
 def test_auto_picks_the_cheapest_reliable_setting_meeting_the_tolerance():
     c = choose(FAKE, "learned_slm", 0.01)
     assert c.row["setting"] == "grid=576x768"
-    assert c.fidelity.resolved() == {"grid": (576, 768), "dtype": "float32", "padding": "auto"}
+    assert c.fidelity.resolved() == {"grid": (576, 768), "dtype": "float32", "padding": "auto", "psf_oversample": 1}
     assert any("padding=0" in r for r in c.rejected)
     assert choose(FAKE, "learned_slm", 0.005).fidelity.preset == "reference"
     assert choose(FAKE, "learned_slm", 0.05).row["setting"] == "fast"

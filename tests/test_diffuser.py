@@ -15,9 +15,10 @@ SMALL = {"fidelity": {"grid": (48, 64)}, "sensor": {"embedding": (6, 8)}}
 
 
 def test_bundled_psf_is_background_subtracted_and_normalised():
-    enc = Diffuser()
+    enc = Diffuser(fidelity={"grid": (384, 512)})
     psf = enc.psf()
     assert psf.shape == (1, 384, 512)
+    assert Diffuser().psf().shape == (1, 576, 768)  # the diffuser's own measured default grid
     torch.testing.assert_close(psf.sum(), torch.tensor(1.0), rtol=1e-5, atol=0)  # float32 sum of 2e5 values
     # dark corners: after subtracting the corner mean and clipping, the corners hold almost no energy
     corner = psf[0, :24, :32].sum() + psf[0, -24:, -32:].sum()

@@ -130,6 +130,7 @@ class Setting:
     knob: Optional[str] = None
     value: Optional[str] = None
     wavelengths: int = 3
+    oversample: int = 1
 
     @property
     def method(self) -> str:
@@ -139,16 +140,23 @@ class Setting:
     def fidelity(self) -> FidelityConfig:
         """The :class:`FidelityConfig` of this setting (explicit knobs; a preset's name kept)."""
         return FidelityConfig(
-            preset=self.preset or "default", grid=tuple(self.grid), dtype=self.dtype, padding=str(self.padding)
+            preset=self.preset or "default",
+            grid=tuple(self.grid),
+            dtype=self.dtype,
+            padding=str(self.padding),
+            psf_oversample=int(self.oversample),
         )
 
 
-def preset_setting(name: str) -> Setting:
-    """The setting of a named fidelity preset."""
+def preset_setting(name: str, encoder_name: str | None = None) -> Setting:
+    """The setting of a named fidelity preset (with the encoder's own measured overrides)."""
     if name not in FIDELITY_PRESETS:
         raise ConfigError("preset", name, f"one of {', '.join(FIDELITY_PRESETS)}")
-    p = FIDELITY_PRESETS[name]
-    return Setting(name, "preset", tuple(p["grid"]), p["dtype"], p["padding"], preset=name)
+    overrides = getattr(_encoder_class(encoder_name), "fidelity_presets", {}) if encoder_name else {}
+    p = FidelityConfig(preset=name).resolved(overrides)
+    return Setting(
+        name, "preset", tuple(p["grid"]), p["dtype"], p["padding"], preset=name, oversample=int(p.get("psf_oversample") or 1)
+    )
 
 
 def paper_setting(grid=PAPER_GRID, padding: str = PAPER_PADDING) -> Setting:
@@ -174,11 +182,11 @@ def _encoder_class(name: str):
 
 
 def sweep_settings(encoder_name: str, base: str = "default") -> list[Setting]:
-    """Each knob alone from ``base``: grid, padding (mask encoders), dtype, wavelengths (mask encoders).
+    """Each knob alone from ``base``: grid, dtype; for mask encoders also padding, wavelengths, PSF oversampling.
 
     Points equal to ``base`` itself are left out (the preset row stands for them).
     """
-    b = preset_setting(base)
+    b = preset_setting(base, encoder_name)
     mask = _is_mask_encoder(_encoder_class(encoder_name))
     out = []
     for g in SWEEP_GRIDS:
@@ -194,6 +202,9 @@ def sweep_settings(encoder_name: str, base: str = "default") -> list[Setting]:
     if mask:
         out.append(Setting("wavelengths=1", "sweep", b.grid, b.dtype, b.padding, knob="wavelengths", value="1",
                            wavelengths=1))
+        if b.oversample == 1:
+            out.append(Setting("psf_oversample=2", "sweep", b.grid, b.dtype, b.padding, knob="psf_oversample",
+                               value="2", oversample=2))
     return out
 
 
@@ -449,11 +460,11 @@ def plan(encoders=ENCODERS, presets=PRESETS, *, sweep: bool = True, paper: bool 
         units.append((name, hifi_setting(hifi_grid, hifi_padding)))
         if paper:
             units.append((name, paper_setting(paper_grid, paper_padding)))
-        units += [(name, preset_setting(p)) for p in presets]
+        units += [(name, preset_setting(p, name)) for p in presets]
         if sweep:
-            have = {(u.grid, u.dtype, u.padding, u.wavelengths) for n, u in units if n == name and u.kind != "paper"}
+            have = {(u.grid, u.dtype, u.padding, u.wavelengths, u.oversample) for n, u in units if n == name and u.kind != "paper"}
             units += [(name, u) for u in sweep_settings(name)
-                      if (u.grid, u.dtype, u.padding, u.wavelengths) not in have]
+                      if (u.grid, u.dtype, u.padding, u.wavelengths, u.oversample) not in have]
     return units
 
 
@@ -562,7 +573,7 @@ def encode_all(encoder: str = "fixed_slm", preset: str = "default", embedding=EM
     t_load = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        enc = build_encoder(encoder, preset_setting(preset), embedding)
+        enc = build_encoder(encoder, preset_setting(preset, encoder), embedding)
         with tempfile.TemporaryDirectory(prefix="optoenc-bench-") as tmp:
             root = cache_root or tmp
             key = cache.embedding_key(enc, ds.config, h.hexdigest())

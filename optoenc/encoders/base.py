@@ -27,6 +27,9 @@ __all__ = ["EncoderConfig", "OpticalEncoder"]
 
 #: Above this many operator entries the fine-grid (FFT) path is used instead.
 _MAX_OPERATOR_ENTRIES = 40_000_000
+#: Treat grid values as cell averages of piecewise-constant functions (see
+#: :func:`optoenc.imaging.cell_blur`) rather than point masses.
+CELL_MODEL = True
 #: Scene geometries whose correlation tensors are kept (oldest dropped first).
 _MAX_GEOMETRIES = 4
 
@@ -73,6 +76,9 @@ class OpticalEncoder(nn.Module, abc.ABC):
     Config: ClassVar[type] = EncoderConfig
     learnable: ClassVar[bool] = False
     linear: ClassVar[bool] = True
+    #: Measured per-preset knob values for this encoder (e.g. a grid that
+    #: avoids moire with its mask's pitch), over the shared preset table.
+    fidelity_presets: ClassVar[dict[str, dict]] = {}
 
     def __init__(
         self,
@@ -87,8 +93,10 @@ class OpticalEncoder(nn.Module, abc.ABC):
         self.scene_config = _coerce(SceneConfig, scene, "scene")
         self.sensor = _coerce(SensorConfig, sensor, "sensor")
         self.fidelity = _coerce(FidelityConfig, fidelity, "fidelity")
-        self.geometry = Geometry.of(self.sensor, self.fidelity)
-        self.optics_dtype = getattr(torch, self.fidelity.resolved()["dtype"])
+        #: The resolved fidelity knobs (preset, this encoder's overrides, explicit knobs).
+        self.knobs = self.fidelity.resolved(type(self).fidelity_presets)
+        self.geometry = Geometry.of(self.sensor, self.fidelity, type(self).fidelity_presets)
+        self.optics_dtype = getattr(torch, self.knobs["dtype"])
         self._psf_cache: tuple[Any, torch.Tensor] | None = None
         self._op_cache: dict[Any, Any] = {}
 
@@ -119,6 +127,11 @@ class OpticalEncoder(nn.Module, abc.ABC):
         """Height on the grid, in grid pixels, of an object of ``height`` metres (default: the scene's)."""
         h = self.scene_config.object_height if height is None else height
         return h * self.magnification / self.geometry.spacing[0]
+
+    @property
+    def pixel_aspect(self) -> float:
+        """Grid pixel height / width (the scene keeps its physical aspect ratio)."""
+        return self.geometry.spacing[0] / self.geometry.spacing[1]
 
     @property
     def channels(self) -> int:
@@ -168,9 +181,9 @@ class OpticalEncoder(nn.Module, abc.ABC):
         if key not in self._op_cache:
             H, W = self.geometry.grid
             a, b = self.geometry.embedding
-            py, px = imaging.placement_matrices(scene_shape, (H, W), height_px)
-            ry = imaging.correlation_tensor(imaging.box_matrix(H, a), py, H)
-            rx = imaging.correlation_tensor(imaging.box_matrix(W, b), px, W)
+            py, px = imaging.placement_matrices(scene_shape, (H, W), height_px, pixel_aspect=self.pixel_aspect)
+            ry = imaging.correlation_tensor(imaging.sensor_matrix(H, a, CELL_MODEL), py, H)
+            rx = imaging.correlation_tensor(imaging.sensor_matrix(W, b, CELL_MODEL), px, W)
             # Bounded: a learned d2 changes the height every step.
             stale = [k for k in self._op_cache if k[0] == "corr"]
             for k in stale[: max(0, len(stale) - _MAX_GEOMETRIES + 1)]:
@@ -218,8 +231,8 @@ class OpticalEncoder(nn.Module, abc.ABC):
         if method == "operator":
             out = imaging.apply_operator(self.operator((h, w), height), x)
         elif method == "direct":
-            placed = imaging.place(x, self.geometry.grid, self.object_height_px(height))
-            out = imaging.integrate(imaging.fft_convolve(placed, self.psf()[None]), (a, b))
+            placed = imaging.place(x, self.geometry.grid, self.object_height_px(height), pixel_aspect=self.pixel_aspect)
+            out = imaging.integrate(imaging.fft_convolve(placed, self.psf()[None]), (a, b), cells=CELL_MODEL)
         else:
             raise ConfigError("method", method, "one of 'auto', 'operator', 'direct'")
         return out.to(scene.dtype)

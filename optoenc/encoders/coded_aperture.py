@@ -35,29 +35,48 @@ __all__ = ["MaskEncoder", "CodedApertureConfig", "CodedAperture", "mls_sequence"
 class MaskEncoder(OpticalEncoder):
     """Base of the encoders whose PSF is point source -> mask -> BLAS over ``d2`` -> ``|U|^2``."""
 
+    @property
+    def oversample(self) -> int:
+        """Field samples per grid pixel and axis (``fidelity.psf_oversample``)."""
+        return int(self.knobs.get("psf_oversample") or 1)
+
+    @property
+    def field_grid(self) -> tuple[int, int]:
+        """Grid of the wave field: the simulation grid refined ``oversample`` times per axis."""
+        return tuple(n * self.oversample for n in self.geometry.grid)
+
+    @property
+    def field_spacing(self) -> tuple[float, float]:
+        """Sample spacing of the wave field, metres."""
+        return tuple(d / self.oversample for d in self.geometry.spacing)
+
     def fidelity_padding(self) -> tuple[int, int] | str:
         """Zero padding per side: ``"auto"``, or grid pixels from a fraction of the grid (``fidelity.padding``)."""
-        pad = self.fidelity.resolved()["padding"]
+        pad = self.knobs["padding"]
         if pad == "auto":
             return "auto"
-        return tuple(math.ceil(float(pad) * n) for n in self.geometry.grid)
+        return tuple(math.ceil(float(pad) * n) for n in self.field_grid)
 
     def propagated_psf(self, mask: torch.Tensor, d2: float | torch.Tensor) -> torch.Tensor:
         """``(3, H, W)`` intensity PSF (each channel summing to one) of an amplitude ``mask``.
 
         Args:
             mask: ``(H, W)`` or ``(3, H, W)`` (one per R, G, B wavelength)
-                amplitude transmittance on the grid, real or complex.
+                amplitude transmittance on the field grid (:attr:`field_grid`),
+                real or complex.
             d2: mask-to-sensor distance, metres (a tensor may require grad).
         """
         psf = intensity_psf(
             mask,
             devices.WAVELENGTHS_RGB,
-            self.geometry.spacing,
+            self.field_spacing,
             self.scene_config.distance,
             d2,
             padding=self.fidelity_padding(),
         )
+        if self.oversample > 1:  # intensity integrated over each grid pixel
+            s = self.oversample
+            psf = torch.nn.functional.avg_pool2d(psf[None] if psf.dim() == 3 else psf[None, None], s)[0]
         return psf.to(self.optics_dtype).expand(3, -1, -1) if psf.shape[0] == 1 else psf.to(self.optics_dtype)
 
 
@@ -101,7 +120,7 @@ class CodedAperture(MaskEncoder):
     def mask(self) -> torch.Tensor:
         """``(H, W)`` amplitude transmittance of the mask on the simulation grid (exact fractional areas)."""
         size = (self.config.feature_size, self.config.feature_size)
-        return cell_mask(self.cells.to(self.optics_dtype), size, self.geometry.grid, self.geometry.spacing)
+        return cell_mask(self.cells.to(self.optics_dtype), size, self.field_grid, self.field_spacing)
 
     def compute_psf(self) -> torch.Tensor:
         return self.propagated_psf(self.mask(), self.d2)

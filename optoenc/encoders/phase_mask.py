@@ -176,7 +176,7 @@ class PhaseMask(MaskEncoder):
         if self._interp is None:
             self._interp = tuple(
                 bilinear_matrix(n, cell, g, d)
-                for n, cell, g, d in zip(self._lattice, self.cell_size, self.geometry.grid, self.geometry.spacing)
+                for n, cell, g, d in zip(self._lattice, self.cell_size, self.field_grid, self.field_spacing)
             )
         return self._interp
 
@@ -191,7 +191,7 @@ class PhaseMask(MaskEncoder):
         cdt = torch.complex128 if self.optics_dtype == torch.float64 else torch.complex64
         t = phase_mask(self.surface(), devices.WAVELENGTHS_RGB, self.index, dtype=cdt)  # (3, H, W)
         size = tuple(self.config.aperture * s for s in self.sensor.size)
-        grid, spacing = self.geometry.grid, self.geometry.spacing
+        grid, spacing = self.field_grid, self.field_spacing
         opening = rect_aperture(grid, spacing, size, dtype=self.optics_dtype, device=t.device)
         return t * opening
 

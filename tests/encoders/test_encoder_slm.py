@@ -83,8 +83,10 @@ def test_panel_image_maps_subpixel_rows_to_rgb():
 
 
 def test_digit_size_on_the_grid():
-    # REFERENCE §2: ~97 px for d2 = 4 mm on the ~12.3 um grid; 0.5 px: rounding of the quoted value.
-    assert FixedSLM().object_height_px() == pytest.approx(97.8, abs=0.5)
+    # REFERENCE §2: ~97 px for d2 = 4 mm on the ~12.3 um (384 x 512) grid; 0.5 px: rounding of the quoted value.
+    assert FixedSLM(fidelity={"grid": (384, 512)}).object_height_px() == pytest.approx(97.8, abs=0.5)
+    # the SLM's own default grid (288 x 384, ~16.4 um) scales it: same physical size
+    assert FixedSLM().object_height_px() == pytest.approx(97.8 * 288 / 384, abs=0.5)
 
 
 def test_pattern_seed_and_files(tmp_path):
