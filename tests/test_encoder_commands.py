@@ -45,3 +45,43 @@ def test_export_refuses_an_encoder_without_a_panel(tmp_path, quick_args, capsys)
     run = next(p for p in tmp_path.iterdir() if p.is_dir())
     assert main(["export", "--run", str(run), "--out", str(tmp_path / "x.png")]) == 2
     assert "no ST7735R panel" in capsys.readouterr().err
+
+
+def _pairs():
+    from optoenc.plugins import get_registry
+
+    return [(e, d) for e in get_registry("encoder").names() for d in get_registry("decoder").names()]
+
+
+@pytest.mark.parametrize("encoder,decoder", _pairs())
+def test_every_encoder_decoder_pair_trains_through_the_cli(tmp_path, quick_args, encoder, decoder):
+    """Smoke run: one epoch on a few hundred digits, fast preset, for every registered pair."""
+    args = ["fit", "--encoder", encoder, "--decoder", decoder, "--trainer.max_epochs=1", "--fidelity.preset=fast", *quick_args]
+    assert main(args) == 0
+    summary = json.loads(next(tmp_path.iterdir()).joinpath("summary.json").read_text())
+    assert summary["names"] == {"encoder": encoder, "decoder": decoder, "dataset": "mnist"}
+    assert 0.0 <= summary["test_acc"] <= 1.0
+
+
+def test_corrupt_mnist_through_the_cli_names_the_file_and_both_hashes(tmp_path, monkeypatch, capsys):
+    import shutil
+    from importlib import resources
+
+    src = resources.files("optoenc") / "resources" / "mnist"
+    root = tmp_path / "mnist"
+    root.mkdir()
+    for f in src.iterdir():
+        shutil.copy(str(f), root / f.name)
+    target = root / "t10k-labels-idx1-ubyte.gz"
+    raw = bytearray(target.read_bytes())
+    raw[100] ^= 0xFF
+    target.write_bytes(bytes(raw))
+    monkeypatch.setenv("OPTOENC_MNIST_ROOT", str(root))
+    code = main(["simulate", "--encoder", "diffuser", "--out", str(tmp_path / "sim"), "--count", "2"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "\n" not in err and "Traceback" not in err
+    assert "t10k-labels-idx1-ubyte.gz" in err
+    assert "b91679a0acfe4ba0e50a2437a903084cba1f5f92592b016a25a7dfd00455798b" in err  # expected
+    import hashlib
+
+    assert hashlib.sha256(bytes(raw)).hexdigest() in err  # actual
