@@ -183,7 +183,7 @@ def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> di
     start = time.time()
     atomic_write_text(run_dir / RUN_FILES["config"], run.to_yaml())
     parts = build(run, progress=run.trainer.progress)
-    if not resume:
+    if not resume and parts.module.encoder.learnable:  # a fixed encoder's initial PSF is its final one
         _pictures(parts, run, run_dir, "initial")
     trainer = _trainer(run, run_dir, extra_callbacks=callbacks)
     ckpt = checkpoint_path(run_dir, "last")

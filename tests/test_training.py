@@ -31,7 +31,7 @@ def test_fit_writes_a_complete_run_directory(tmp_path, quick_args, capsys):
     assert 0 <= summary["val_acc"] <= 1 and 0 <= summary["test_acc"] <= 1
     assert summary["encoder"]["d2"] == 0.004 and summary["wall_time_s"] > 0
     assert len(read_metrics(run / "metrics.csv")) == 1
-    for pic in ("psf_initial.png", "psf_final.png", "measurements.png", "curves.png"):
+    for pic in ("psf_final.png", "measurements.png", "curves.png"):  # fixed encoder: no separate initial PSF
         assert (run / "pictures" / pic).read_bytes()[:4] == b"\x89PNG"
     assert (run / "checkpoints" / "best.ckpt").exists() and (run / "checkpoints" / "last.ckpt").exists()
     # validate / test a finished run from its checkpoint
