@@ -226,7 +226,7 @@ def cmd_psf(args, extra) -> int:
     run = _compose(args, extra)
     enc = build_encoder(run)
     out = Path(args.out)
-    pictures.save_psf(out, enc.psf(), enc.geometry.spacing, f"{enc.name} PSF")
+    pictures.save_psf(out, pictures.spectral_psf(enc), enc.geometry.spacing, f"{enc.name} PSF")
     if hasattr(enc, "mask"):
         pictures.save_mask(out.with_name(out.stem + "_mask.png"), enc.mask(), f"{enc.name} mask")
     print(out)

@@ -11,7 +11,7 @@ import torch
 
 from .rundir import atomic_write_bytes
 
-__all__ = ["psf_rgb", "save_psf", "save_mask", "save_measurements", "save_curves"]
+__all__ = ["spectral_psf", "psf_rgb", "save_psf", "save_mask", "save_measurements", "save_curves"]
 
 
 def _figure(figsize):
@@ -28,6 +28,14 @@ def _save(plt, fig, path: str | Path) -> Path:
     fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
     plt.close(fig)
     return atomic_write_bytes(path, buf.getvalue())
+
+
+def spectral_psf(encoder) -> torch.Tensor:
+    """The encoder's PSF per wavelength (R, G, B; or 1 channel if achromatic), each summing to 1, for pictures."""
+    from .imaging import normalize_psf
+
+    with torch.no_grad():
+        return normalize_psf(encoder.compute_psf().detach(), name=f"encoder {encoder.name}")
 
 
 def psf_rgb(psf: torch.Tensor, gamma: float = 0.5) -> np.ndarray:
@@ -70,7 +78,15 @@ def save_mask(path: str | Path, mask: torch.Tensor, title: str = "mask transmitt
     """Save a mask (``(H, W)`` transmittance, or ``(3, H, W)`` per colour)."""
     plt, fig = _figure((5, 5))
     ax = fig.add_subplot(111)
-    m = mask.detach().double().cpu()
+    m = mask.detach().cpu()
+    if m.is_complex():  # a phase mask: show the phase delay at the middle (green) wavelength
+        c = m[m.shape[0] // 2] if m.dim() == 3 else m
+        phase = torch.angle(c).double().masked_fill(c.abs() == 0, float("nan"))  # opaque: no phase
+        im = ax.imshow(phase.numpy(), cmap="twilight", vmin=-np.pi, vmax=np.pi, interpolation="nearest", aspect="auto")
+        fig.colorbar(im, ax=ax, label="phase [rad]")
+        ax.set_title(title)
+        return _save(plt, fig, path)
+    m = m.double()
     if m.dim() == 3 and m.shape[0] == 3:
         ax.imshow(np.clip(m.permute(1, 2, 0).numpy(), 0, 1), interpolation="nearest", aspect="auto")
     else:

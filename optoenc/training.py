@@ -160,7 +160,8 @@ def _pictures(parts: Parts, run: RunConfig, run_dir: Path, tag: str) -> None:
     enc = parts.module.encoder
     pic = run_dir / RUN_FILES["pictures"]
     with torch.no_grad():
-        pictures.save_psf(pic / f"psf_{tag}.png", enc.psf(), enc.geometry.spacing, f"{enc.name} PSF ({tag})")
+        psf = pictures.spectral_psf(enc)
+        pictures.save_psf(pic / f"psf_{tag}.png", psf, enc.geometry.spacing, f"{enc.name} PSF ({tag})")
         if hasattr(enc, "mask"):
             pictures.save_mask(pic / f"mask_{tag}.png", enc.mask(), f"{enc.name} mask ({tag})")
         n = run.output.examples
