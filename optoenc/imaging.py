@@ -212,7 +212,6 @@ def correlation_tensor(box: torch.Tensor, place_m: torch.Tensor, n_psf: int) -> 
     Returns:
         ``(n_out, n_scene, n_psf)`` tensor.
     """
-    n_grid = box.shape[1]
     c = n_psf // 2
     # conv1d is a correlation: out[a, p, t] = sum_j boxpad[a, t + j] place[j, p].
     left = max(0, c)

@@ -9,6 +9,7 @@ re-raise instead.
 
 from __future__ import annotations
 
+import importlib
 import importlib.metadata
 import os
 import threading
@@ -54,8 +55,6 @@ class PluginHost:
         self.pm.add_hookspecs(hookspecs)
         self.registries: dict[str, Registry] = {k: Registry(k) for k in KINDS}
         self.plugins: list[PluginInfo] = []
-        import importlib
-
         self.add(importlib.import_module(BUILTINS), name="builtins", distribution="optoenc")
         if entry_points:
             for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .errors import ConfigError, DataError
+from .errors import ConfigError
 from .imaging import area_matrix
 
 __all__ = ["bundled_psf_path", "read_psf", "subtract_background", "resample_area", "file_digest"]

@@ -47,7 +47,7 @@ def test_same_seed_same_metrics(tmp_path, quick):
     assert read_metrics(tmp_path / "a" / "metrics.csv") == [
         {**r, "time_s": ra["time_s"]} for r, ra in zip(read_metrics(tmp_path / "b" / "metrics.csv"), read_metrics(tmp_path / "a" / "metrics.csv"))
     ]
-    c = fit(compose(overrides=quick + ["trainer.max_epochs=2"], names={"encoder": "diffuser", "decoder": "fcnn"}, seed=4), tmp_path / "c")
+    fit(compose(overrides=quick + ["trainer.max_epochs=2"], names={"encoder": "diffuser", "decoder": "fcnn"}, seed=4), tmp_path / "c")
     assert read_metrics(tmp_path / "c" / "metrics.csv")[0]["train_loss"] != read_metrics(tmp_path / "a" / "metrics.csv")[0]["train_loss"]
 
 

@@ -170,7 +170,7 @@ def hifi_setting(grid=HIFI_GRID, padding: str = HIFI_PADDING) -> Setting:
 
 
 def _is_mask_encoder(cls) -> bool:
-    from ..encoders.coded_aperture import MaskEncoder
+    from ..encoders.mask import MaskEncoder
 
     return isinstance(cls, type) and issubclass(cls, MaskEncoder)
 
@@ -236,7 +236,7 @@ def build_encoder(name: str, setting: Setting, embedding=EMBEDDING):
 
 def paper_forward(enc, scene: torch.Tensor, recompute_psf: bool = True, noise: bool = True) -> torch.Tensor:
     """The paper pipeline's forward: PSF recomputed (mask encoders), place -> FFT-convolve -> integrate, noise."""
-    from ..encoders.coded_aperture import MaskEncoder
+    from ..encoders.mask import MaskEncoder
 
     if recompute_psf and isinstance(enc, MaskEncoder):
         enc._psf_cache = None  # the paper recomputed the PSF (BLAS) at every step

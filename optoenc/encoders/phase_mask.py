@@ -49,7 +49,7 @@ from ..optics import phase_mask, rect_aperture
 from ..settings import setting
 from . import constants as K
 from .base import EncoderConfig
-from .coded_aperture import MaskEncoder
+from .mask import MaskEncoder
 
 __all__ = [
     "PhaseMaskConfig",

@@ -24,7 +24,7 @@ from ..settings import setting
 from . import constants as K
 from . import slm_panel
 from .base import EncoderConfig
-from .coded_aperture import MaskEncoder
+from .mask import MaskEncoder
 
 __all__ = ["SLMConfig", "FixedSLM", "LearnedSLMConfig", "LearnedSLM", "panel_image"]
 

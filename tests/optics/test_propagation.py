@@ -1,6 +1,5 @@
 """Propagator properties: energy, inversion, adjoint, gradients, batching, centring, caching."""
 
-import math
 
 import pytest
 import torch

@@ -1,0 +1,68 @@
+"""`MaskEncoder`: the shared base of every encoder whose PSF is propagated from a mask.
+
+Coded aperture, LCD/SLM and phase-mask encoders supply a transmittance on the
+wave-field grid (the simulation grid refined ``fidelity.psf_oversample``
+times); the PSF is point source at ``d1`` -> mask -> band-limited angular
+spectrum over ``d2`` -> ``|U|^2`` at the R, G, B wavelengths in one batched
+FFT, integrated over each grid pixel.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from .. import devices
+from ..optics import intensity_psf
+from .base import OpticalEncoder
+
+__all__ = ["MaskEncoder"]
+
+
+class MaskEncoder(OpticalEncoder):
+    """Base of the encoders whose PSF is point source -> mask -> BLAS over ``d2`` -> ``|U|^2``."""
+
+    @property
+    def oversample(self) -> int:
+        """Field samples per grid pixel and axis (``fidelity.psf_oversample``)."""
+        return int(self.knobs.get("psf_oversample") or 1)
+
+    @property
+    def field_grid(self) -> tuple[int, int]:
+        """Grid of the wave field: the simulation grid refined ``oversample`` times per axis."""
+        return tuple(n * self.oversample for n in self.geometry.grid)
+
+    @property
+    def field_spacing(self) -> tuple[float, float]:
+        """Sample spacing of the wave field, metres."""
+        return tuple(d / self.oversample for d in self.geometry.spacing)
+
+    def fidelity_padding(self) -> tuple[int, int] | str:
+        """Zero padding per side: ``"auto"``, or grid pixels from a fraction of the grid (``fidelity.padding``)."""
+        pad = self.knobs["padding"]
+        if pad == "auto":
+            return "auto"
+        return tuple(math.ceil(float(pad) * n) for n in self.field_grid)
+
+    def propagated_psf(self, mask: torch.Tensor, d2: float | torch.Tensor) -> torch.Tensor:
+        """``(3, H, W)`` intensity PSF (each channel summing to one) of an amplitude ``mask``.
+
+        Args:
+            mask: ``(H, W)`` or ``(3, H, W)`` (one per R, G, B wavelength)
+                amplitude transmittance on the field grid (:attr:`field_grid`),
+                real or complex.
+            d2: mask-to-sensor distance, metres (a tensor may require grad).
+        """
+        psf = intensity_psf(
+            mask,
+            devices.WAVELENGTHS_RGB,
+            self.field_spacing,
+            self.scene_config.distance,
+            d2,
+            padding=self.fidelity_padding(),
+        )
+        if self.oversample > 1:  # intensity integrated over each grid pixel
+            s = self.oversample
+            psf = torch.nn.functional.avg_pool2d(psf[None] if psf.dim() == 3 else psf[None, None], s)[0]
+        return psf.to(self.optics_dtype).expand(3, -1, -1) if psf.shape[0] == 1 else psf.to(self.optics_dtype)
