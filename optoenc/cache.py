@@ -16,6 +16,7 @@ import io
 import json
 import os
 import warnings
+import zlib
 from pathlib import Path
 from typing import Any, Callable
 
@@ -27,6 +28,8 @@ from .settings import to_dict
 __all__ = ["cache_dir", "embedding_key", "load", "store", "cached"]
 
 ENV = "OPTOENC_CACHE_DIR"
+#: Entry header: format tag, then the CRC-32 of the payload (corruption check; the key is the SHA-256).
+_MAGIC = b"OPTOENC-EMB1"
 
 
 def cache_dir(override: str | None = None) -> Path:
@@ -79,8 +82,8 @@ def load(key: str, root: str | None = None) -> dict[str, torch.Tensor] | None:
         return None
     try:
         raw = path.read_bytes()
-        digest, payload = raw[:64].decode(), raw[64:]
-        if hashlib.sha256(payload).hexdigest() != digest:
+        head, payload = raw[: len(_MAGIC) + 8], raw[len(_MAGIC) + 8 :]
+        if head != _MAGIC + b"%08x" % zlib.crc32(payload):
             raise ValueError("checksum mismatch")
         return torch.load(io.BytesIO(payload), map_location="cpu", weights_only=True)
     except Exception as err:
@@ -90,11 +93,11 @@ def load(key: str, root: str | None = None) -> dict[str, torch.Tensor] | None:
 
 
 def store(key: str, tensors: dict[str, torch.Tensor], root: str | None = None) -> Path:
-    """Write ``tensors`` for ``key`` atomically (checksum first, then the payload)."""
+    """Write ``tensors`` for ``key`` atomically (header with the payload's CRC-32, then the payload)."""
     buf = io.BytesIO()
     torch.save({k: v.contiguous() for k, v in tensors.items()}, buf)
     payload = buf.getvalue()
-    return atomic_write_bytes(_path(key, root), hashlib.sha256(payload).hexdigest().encode() + payload)
+    return atomic_write_bytes(_path(key, root), _MAGIC + b"%08x" % zlib.crc32(payload) + payload)
 
 
 def cached(key: str, compute: Callable[[], dict[str, torch.Tensor]], root: str | None = None, enabled: bool = True):

@@ -67,7 +67,7 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
     bs, ebs = run.trainer.batch_size, run.trainer.eval_batch_size
     data = {"train": splits.train, "val": splits.val, "test": splits.test}
     if precomputed:
-        key = cache.embedding_key(encoder, run.dataset, _digest(data))
+        key = cache.embedding_key(encoder, run.dataset, splits.digest or _digest(data))
         emb, _ = cache.cached(
             key,
             lambda: {k: _encode(encoder, x, ebs, progress, k) for k, (x, _y) in data.items()},
@@ -100,7 +100,7 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
 
 
 def _digest(data: dict[str, tuple[torch.Tensor, torch.Tensor]]) -> str:
-    """Content digest of the scenes (the cache must not outlive a changed dataset)."""
+    """Content digest of the scenes, for datasets that give none (the cache must not outlive a changed dataset)."""
     h = hashlib.sha256()
     for k in sorted(data):
         h.update(k.encode())

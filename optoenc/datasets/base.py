@@ -37,6 +37,9 @@ class Splits:
     val: Split
     test: Split
     num_classes: int
+    #: Digest of the source data (e.g. its files' checksums), so caches need
+    #: not hash the tensors; "" when unknown (callers then hash the tensors).
+    digest: str = ""
 
     def sizes(self) -> dict[str, int]:
         """Number of examples per split."""

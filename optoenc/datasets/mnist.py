@@ -132,6 +132,7 @@ def load_arrays(root: str | None = None) -> dict[str, np.ndarray]:
             name = str(folder / FILES[role])
             arrays[role] = parse_idx(data if raw_check else decompress(data, name), name)
         _check_shapes(arrays, folder)
+        arrays["digest"] = hashlib.sha256(" ".join(digests).encode()).hexdigest()
         while len(_CACHE) >= _CACHE_MAX:
             _CACHE.pop(next(iter(_CACHE)))
         _CACHE[key] = arrays
@@ -191,4 +192,5 @@ class MNIST(Dataset):
             val=_split(a["train_images"], a["train_labels"], val),
             test=_split(a["test_images"], a["test_labels"], test),
             num_classes=self.num_classes,
+            digest=a.get("digest", ""),
         )
