@@ -104,6 +104,8 @@ class RunConfig:
     trainer: TrainerConfig
     output: OutputConfig
     tree: DictConfig
+    #: When ``fidelity.preset`` was ``auto``: the measured decision (error, cost).
+    fidelity_auto: Optional[dict] = None
 
     def to_yaml(self) -> str:
         return to_yaml(self.tree)

@@ -62,7 +62,13 @@ class FidelityConfig(Settings):
     ``preset`` fills every knob left at ``null``; a knob set explicitly wins.
     """
 
-    preset: str = setting("default", "named preset filling the knobs left null", choices=tuple(FIDELITY_PRESETS))
+    preset: str = setting(
+        "default",
+        "named preset filling the knobs left null; 'auto': the cheapest setting whose measured embedding error "
+        "is within `tolerance` (measured once per encoder configuration by `optoenc fit`, then cached)",
+        choices=(*FIDELITY_PRESETS, "auto"),
+    )
+    tolerance: float = setting(0.01, "preset 'auto': largest relative embedding error against the high-fidelity reference", gt=0)
     grid: Optional[tuple[int, int]] = setting(None, "simulation grid (rows, columns) over the sensor area", ge=1)
     dtype: Optional[str] = setting(None, "floating point precision of the optics", choices=("float32", "float64"))
     padding: Optional[str] = setting(
@@ -97,11 +103,16 @@ class FidelityConfig(Settings):
                 (``OpticalEncoder.fidelity_presets``), applied over the
                 shared preset table and under explicitly set knobs.
         """
+        if self.preset == "auto":
+            raise ConfigError(
+                "fidelity.preset", "auto", "is resolved for a run by `optoenc fit` (optoenc.autofidelity.resolve); "
+                "an encoder needs a named preset or explicit knobs"
+            )
         out = dict(FIDELITY_PRESETS[self.preset])
         out.update((overrides or {}).get(self.preset, {}))
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
-            if f.name != "preset" and v is not None:
+            if f.name not in ("preset", "tolerance") and v is not None:
                 out[f.name] = tuple(v) if isinstance(v, (list, tuple)) else v
         return out
 

@@ -56,6 +56,10 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
     """Instantiate dataset, encoder, decoder, augmentations and loaders for ``run``."""
     if run.trainer.threads:
         torch.set_num_threads(run.trainer.threads)
+    if run.fidelity.preset == "auto":
+        from .autofidelity import resolve
+
+        run.fidelity, run.fidelity_auto = resolve(run, root=run.trainer.cache_dir)
     torch.manual_seed(run.seed)
     splits = get_registry("dataset").get(run.names["dataset"])(run.dataset).load()
     encoder = build_encoder(run)
@@ -213,6 +217,8 @@ def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> di
         "sensor": to_dict(run.sensor),
         "precomputed_embeddings": parts.precomputed,
     }
+    if getattr(run, "fidelity_auto", None):
+        summary["fidelity_auto"] = run.fidelity_auto
     if run.trainer.verify_preset and run.trainer.verify_preset != run.fidelity.preset:
         summary["verify"] = verify(parts, run, run.trainer.verify_preset)
     write_json(run_dir / RUN_FILES["summary"], summary)

@@ -56,6 +56,7 @@ import torch.nn.functional as F
 
 from .. import devices
 from ..errors import ConfigError
+from ..settings import to_dict
 from ..geometry import FIDELITY_PRESETS, FidelityConfig
 from ..optics import clear_cache, intensity_psf, sampling_report
 
@@ -223,10 +224,19 @@ def _monochromatic(enc, wavelength: float = MONO_WAVELENGTH) -> None:
     enc.propagated_psf = propagated_psf
 
 
-def build_encoder(name: str, setting: Setting, embedding=EMBEDDING):
-    """The encoder ``name`` at ``setting`` (default configuration and seed, noise at the sensor's default)."""
+def build_encoder(name: str, setting: Setting, embedding=EMBEDDING, setup: Optional[dict] = None):
+    """The encoder ``name`` at ``setting``.
+
+    ``setup`` may hold ``config`` (the encoder's settings), ``scene`` and
+    ``sensor`` (mappings or settings objects) to measure a specific encoder;
+    by default its registry defaults are used.
+    """
     cls = _encoder_class(name)
-    enc = cls(fidelity=setting.fidelity(), sensor={"embedding": tuple(int(e) for e in embedding)})
+    setup = dict(setup or {})
+    sensor = setup.get("sensor")
+    sensor = dict(to_dict(sensor)) if sensor is not None and not isinstance(sensor, dict) else dict(sensor or {})
+    sensor["embedding"] = tuple(int(e) for e in embedding)
+    enc = cls(setup.get("config"), scene=setup.get("scene"), sensor=sensor, fidelity=setting.fidelity())
     if setting.wavelengths == 1:
         if not _is_mask_encoder(cls):
             raise ConfigError("wavelengths", 1, f"only mask encoders can be reduced to one wavelength, not {name}")
@@ -401,7 +411,7 @@ def _row(name: str, cls, s: Setting, method: str) -> dict:
 
 
 def _measure(name: str, s: Setting, data: _Data, ref: Optional[torch.Tensor], embedding, steps: int,
-             paper_steps: int, seed: int) -> tuple[dict, Optional[torch.Tensor]]:
+             paper_steps: int, seed: int, setup: Optional[dict] = None) -> tuple[dict, Optional[torch.Tensor]]:
     cls = _encoder_class(name)
     row = _row(name, cls, s, s.method)
     paper = s.kind == "paper"
@@ -409,7 +419,7 @@ def _measure(name: str, s: Setting, data: _Data, ref: Optional[torch.Tensor], em
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # sampling warnings go into the row instead
         t0 = time.perf_counter()
-        enc = build_encoder(name, s, embedding)
+        enc = build_encoder(name, s, embedding, setup)
         if s.kind == "hifi":
             with torch.no_grad():
                 enc.psf()
@@ -486,6 +496,7 @@ def run(
     paper_steps: int = 2,
     seed: int = 0,
     progress: Optional[Callable[[int, int, str], None]] = None,
+    setups: Optional[dict] = None,
 ) -> list[dict]:
     """Measure every ``(encoder, setting)`` of :func:`plan`.
 
@@ -504,6 +515,7 @@ def run(
         paper_steps: timed steps of the paper pipeline (the best is kept; after one warm-up step for
             learned encoders).
         seed: seed of the decoder (the encoders use their configured seeds).
+        setups: per encoder name, the ``setup`` of :func:`build_encoder` (its own settings, scene, sensor).
         progress: called as ``progress(done, total, description)`` before each unit.
 
     Returns:
@@ -524,7 +536,7 @@ def run(
     for i, (name, s) in enumerate(units):
         if progress is not None:
             progress(i, len(units), f"{name} {s.label}")
-        row, e = _measure(name, s, data, refs.get(name), embedding, steps, paper_steps, seed)
+        row, e = _measure(name, s, data, refs.get(name), embedding, steps, paper_steps, seed, (setups or {}).get(name))
         if e is not None:
             refs[name] = e
         rows.append(row)
