@@ -79,10 +79,9 @@ class FidelityConfig(Settings):
 
     psf_oversample: Optional[int] = setting(
         None,
-        "simulated PSFs: the wave field is computed on a grid this many times finer per axis and its "
+        "simulated PSFs: the wave field is computed on a grid this many (odd) times finer per axis and its "
         "intensity integrated over each grid pixel (anti-aliased PSF; cost grows as its square)",
-        ge=1,
-        le=8,
+        choices=(1, 3, 5, 7),
     )
 
     def __post_init__(self) -> None:

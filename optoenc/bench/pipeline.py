@@ -204,8 +204,8 @@ def sweep_settings(encoder_name: str, base: str = "default") -> list[Setting]:
         out.append(Setting("wavelengths=1", "sweep", b.grid, b.dtype, b.padding, knob="wavelengths", value="1",
                            wavelengths=1))
         if b.oversample == 1:
-            out.append(Setting("psf_oversample=2", "sweep", b.grid, b.dtype, b.padding, knob="psf_oversample",
-                               value="2", oversample=2))
+            out.append(Setting("psf_oversample=3", "sweep", b.grid, b.dtype, b.padding, knob="psf_oversample",
+                               value="3", oversample=3))
     return out
 
 

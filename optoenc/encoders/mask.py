@@ -30,8 +30,19 @@ class MaskEncoder(OpticalEncoder):
 
     @property
     def field_grid(self) -> tuple[int, int]:
-        """Grid of the wave field: the simulation grid refined ``oversample`` times per axis."""
-        return tuple(n * self.oversample for n in self.geometry.grid)
+        """Grid of the wave field: the simulation grid refined ``oversample`` (odd) times per axis.
+
+        Its centre sample (the optical axis, at index ``N // 2``) is the centre
+        sub-sample of grid pixel ``n // 2``, so the pixel-integrated PSF keeps
+        the grid's axis convention; the few extra samples past ``n * s`` are
+        dropped after propagation.
+        """
+        s = self.oversample
+        out = []
+        for n in self.geometry.grid:
+            c = (n // 2) * s + (s - 1) // 2
+            out.append(2 * c if 2 * c >= n * s else 2 * c + 1)
+        return tuple(out)
 
     @property
     def field_spacing(self) -> tuple[float, float]:
@@ -64,5 +75,7 @@ class MaskEncoder(OpticalEncoder):
         )
         if self.oversample > 1:  # intensity integrated over each grid pixel
             s = self.oversample
+            H, W = self.geometry.grid
+            psf = psf[..., : H * s, : W * s]
             psf = torch.nn.functional.avg_pool2d(psf[None] if psf.dim() == 3 else psf[None, None], s)[0]
         return psf.to(self.optics_dtype).expand(3, -1, -1) if psf.shape[0] == 1 else psf.to(self.optics_dtype)

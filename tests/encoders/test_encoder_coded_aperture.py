@@ -78,3 +78,21 @@ def test_validation():
         CodedAperture({"feature_size": 0.0})
     with pytest.raises(ConfigError, match=r"^encoder\.order"):
         CodedAperture({"order": 1})
+
+
+@pytest.mark.parametrize("grid", [(48, 64), (45, 63)])
+@pytest.mark.parametrize("s", [3, 5])
+def test_oversampled_field_grid_keeps_the_axis_at_the_pixel_centre(grid, s):
+    """The field's axis sample (index N // 2) must be the centre sub-sample of grid pixel n // 2,
+    or the pixel-integrated PSF shifts by (s - 1) / 2 sub-samples."""
+    enc = CodedAperture(fidelity={"grid": grid, "psf_oversample": s}, sensor={"embedding": (3, 4)})
+    for n, f in zip(grid, enc.field_grid):
+        assert f >= n * s
+        assert f // 2 == (n // 2) * s + (s - 1) // 2
+
+
+def test_even_psf_oversampling_is_rejected():
+    from optoenc.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="psf_oversample"):
+        CodedAperture(fidelity={"grid": (48, 64), "psf_oversample": 2})
