@@ -22,7 +22,6 @@ from dataclasses import dataclass
 from typing import Any, ClassVar, Sequence
 
 import torch
-from kornia.geometry.transform import get_perspective_transform, get_rotation_matrix2d, warp_affine, warp_perspective
 from torch import nn
 
 from .encoders.base import _coerce
@@ -260,6 +259,8 @@ class Rotate(Augmentation):
         B, dt = canvas.shape[0], canvas.dtype
         angle = _uniform(B, -self.config.max_angle, self.config.max_angle, canvas.device)
         center = (state.center.flip(1) - 0.5).to(dt)  # kornia: (x, y), pixel centres at integers
+        from kornia.geometry.transform import get_rotation_matrix2d, warp_affine  # lazy: listings stay fast
+
         m = get_rotation_matrix2d(center, angle.to(dt), torch.ones(B, 2, dtype=dt, device=canvas.device))
         out = warp_affine(canvas, m, tuple(canvas.shape[-2:]), align_corners=True).clamp_min(0)
         c, s = torch.cos(torch.deg2rad(angle)).abs(), torch.sin(torch.deg2rad(angle)).abs()
@@ -286,6 +287,8 @@ class Perspective(Augmentation):
         src = state.center.flip(1)[:, None, :] - 0.5 - signs * half
         on = (torch.rand(B, device=dev) < self.config.p).double()[:, None, None]
         shift = self.config.distortion * half * torch.rand(B, 4, 2, device=dev).double() * signs * on
+        from kornia.geometry.transform import get_perspective_transform, warp_perspective
+
         m = get_perspective_transform(src, src + shift).to(dt)
         out = warp_perspective(canvas, m, tuple(canvas.shape[-2:]), align_corners=True).clamp_min(0)
         return torch.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0), state

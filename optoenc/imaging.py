@@ -197,7 +197,7 @@ def integrate(image: torch.Tensor, out_shape: tuple[int, int], cells: bool = Fal
     return sy @ image @ sx.T
 
 
-def correlation_tensor(box: torch.Tensor, place_m: torch.Tensor, n_psf: int) -> torch.Tensor:
+def correlation_tensor(box: torch.Tensor, place_m: torch.Tensor, n_psf: int, sub: int = 1) -> torch.Tensor:
     """1-D geometry tensor linking scene pixels to embedding pixels through a PSF offset.
 
     ``R[a, p, k] = sum_y box[a, y] * place[y - (k - n_psf // 2), p]``: the
@@ -208,18 +208,26 @@ def correlation_tensor(box: torch.Tensor, place_m: torch.Tensor, n_psf: int) -> 
         box: ``(n_out, n_grid)`` integration matrix (:func:`box_matrix`).
         place_m: ``(n_grid, n_scene)`` placement matrix.
         n_psf: PSF length along this axis (its axis at ``n_psf // 2``).
+        sub: odd; ``box`` and ``place_m`` live on a grid ``sub`` times finer
+            than the PSF's, whose values are cell averages spread evenly over
+            their ``sub`` fine cells: the scene keeps its sub-pixel structure.
 
     Returns:
         ``(n_out, n_scene, n_psf)`` tensor.
     """
-    c = n_psf // 2
+    if sub < 1 or sub % 2 == 0:
+        raise ConfigError("sub", sub, "must be an odd integer >= 1 (the PSF's axis at a fine cell centre)")
+    n_f = n_psf * sub
+    c = (n_psf // 2) * sub + sub // 2
     # conv1d is a correlation: out[a, p, t] = sum_j boxpad[a, t + j] place[j, p].
     left = max(0, c)
-    right = max(0, n_psf - 1 - c)
-    inp = F.pad(box[:, None, :], (left, right))  # (n_out, 1, n_grid + n_psf - 1)
+    right = max(0, n_f - 1 - c)
+    inp = F.pad(box[:, None, :], (left, right))  # (n_out, 1, n_grid + n_f - 1)
     weight = place_m.T[:, None, :]  # (n_scene, 1, n_grid)
-    out = F.conv1d(inp, weight)  # (n_out, n_scene, n_psf); t = s + left, s = k - c
-    return out[:, :, :n_psf] if out.shape[-1] >= n_psf else F.pad(out, (0, n_psf - out.shape[-1]))
+    out = F.conv1d(inp, weight)  # (n_out, n_scene, n_f); t = s + left, s = k - c
+    out = out[:, :, :n_f] if out.shape[-1] >= n_f else F.pad(out, (0, n_f - out.shape[-1]))
+    # each PSF cell spreads its value evenly over its fine cells (mass conserved)
+    return out if sub == 1 else out.reshape(out.shape[0], out.shape[1], n_psf, sub).mean(-1)
 
 
 def scene_operator(psf: torch.Tensor, ry: torch.Tensor, rx: torch.Tensor) -> torch.Tensor:

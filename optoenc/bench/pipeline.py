@@ -165,9 +165,15 @@ def paper_setting(grid=PAPER_GRID, padding: str = PAPER_PADDING) -> Setting:
     return Setting("paper", "paper", tuple(grid), "float32", str(padding))
 
 
-def hifi_setting(grid=HIFI_GRID, padding: str = HIFI_PADDING) -> Setting:
-    """The high-fidelity reference's setting (float64)."""
-    return Setting("hifi", "hifi", tuple(grid), "float64", str(padding))
+def hifi_setting(grid=HIFI_GRID, padding: str = HIFI_PADDING, oversample: int = 1) -> Setting:
+    """The high-fidelity reference's setting (float64).
+
+    ``oversample``: at least the finest PSF oversampling of the encoder's
+    presets, so the reference is never coarser in any knob (with ``auto``
+    padding then, which is wrap-around free by construction: a 3x window at
+    3x oversampling would not fit in memory).
+    """
+    return Setting("hifi", "hifi", tuple(grid), "float64", "auto" if oversample > 1 else str(padding), oversample=oversample)
 
 
 def _is_mask_encoder(cls) -> bool:
@@ -467,7 +473,8 @@ def plan(encoders=ENCODERS, presets=PRESETS, *, sweep: bool = True, paper: bool 
     units = []
     for name in encoders:
         _encoder_class(name)  # unknown names fail before any work
-        units.append((name, hifi_setting(hifi_grid, hifi_padding)))
+        finest = max(preset_setting(p, name).oversample for p in FIDELITY_PRESETS)
+        units.append((name, hifi_setting(hifi_grid, hifi_padding, finest)))
         if paper:
             units.append((name, paper_setting(paper_grid, paper_padding)))
         units += [(name, preset_setting(p, name)) for p in presets]

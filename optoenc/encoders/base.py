@@ -131,6 +131,11 @@ class OpticalEncoder(nn.Module, abc.ABC):
         return h * self.magnification / self.geometry.spacing[0]
 
     @property
+    def subcells(self) -> int:
+        """Scene sub-sampling per grid pixel and axis in the operator (``fidelity.psf_oversample``, odd)."""
+        return int(self.knobs.get("psf_oversample") or 1)
+
+    @property
     def pixel_aspect(self) -> float:
         """Grid pixel height / width (the scene keeps its physical aspect ratio)."""
         return self.geometry.spacing[0] / self.geometry.spacing[1]
@@ -183,9 +188,12 @@ class OpticalEncoder(nn.Module, abc.ABC):
         if key not in self._op_cache:
             H, W = self.geometry.grid
             a, b = self.geometry.embedding
-            py, px = imaging.placement_matrices(scene_shape, (H, W), height_px, pixel_aspect=self.pixel_aspect)
-            ry = imaging.correlation_tensor(imaging.sensor_matrix(H, a, CELL_MODEL), py, H)
-            rx = imaging.correlation_tensor(imaging.sensor_matrix(W, b, CELL_MODEL), px, W)
+            s = self.subcells
+            # s > 1: the scene is placed and integrated on an s-times finer grid while the
+            # PSF's grid values are cell averages: the scene keeps its sub-pixel structure.
+            py, px = imaging.placement_matrices(scene_shape, (H * s, W * s), height_px * s, pixel_aspect=self.pixel_aspect)
+            ry = imaging.correlation_tensor(imaging.sensor_matrix(H * s, a, CELL_MODEL), py, H, sub=s)
+            rx = imaging.correlation_tensor(imaging.sensor_matrix(W * s, b, CELL_MODEL), px, W, sub=s)
             # Bounded: a learned d2 changes the height every step.
             stale = [k for k in self._op_cache if k[0] == "corr"]
             for k in stale[: max(0, len(stale) - _MAX_GEOMETRIES + 1)]:

@@ -30,7 +30,6 @@ from typing import Optional
 
 import numpy as np
 import torch
-from scipy.signal import fftconvolve
 from scipy.special import j1
 
 from .. import devices, psf_files
@@ -78,6 +77,8 @@ def airy_pixel_psf(
     fine_step = min(spacing) / s
     if blur_diameter > fine_step:
         disk = np.clip((blur_diameter / 2 - rho) / fine_step + 0.5, 0.0, 1.0)
+        from scipy.signal import fftconvolve  # lazy: scipy.signal takes ~1 s to import
+
         airy = np.clip(fftconvolve(airy, disk / disk.sum(), mode="same"), 0.0, None)
     out = airy.reshape(n, s, n, s).sum(axis=(1, 3))
     return out / out.sum()
