@@ -33,7 +33,7 @@ class SensorConfig(Settings):
 
     pixel_pitch: float = setting(devices.IMX477_PITCH, "physical sensor pixel pitch", unit="m", gt=0)
     resolution: tuple[int, int] = setting(devices.IMX477_RESOLUTION, "physical sensor pixels (rows, columns)", ge=1)
-    embedding: tuple[int, int] = setting((24, 32), "embedding size (rows, columns) after pixel integration", ge=1)
+    embedding: tuple[int, int] = setting(devices.EMBEDDINGS[0], "embedding size (rows, columns) after pixel integration", ge=1)
     color: str = setting("gray", "sensor colour: 'gray' (one channel) or 'rgb'", choices=("gray", "rgb"))
     noise: str = setting("gaussian", "noise model", choices=("gaussian", "poisson", "none"))
     snr_db: Optional[float] = setting(devices.SNR_DB, "SNR of the gaussian noise (null: no noise)", unit="dB")
@@ -50,7 +50,7 @@ class SensorConfig(Settings):
 #: Named fidelity presets: the one table of their values (docs list it).
 FIDELITY_PRESETS: dict[str, dict] = {
     "reference": {"grid": (768, 1024), "dtype": "float64", "padding": "1.0", "psf_oversample": 1},
-    "default": {"grid": (384, 512), "dtype": "float32", "padding": "auto", "psf_oversample": 1},
+    "default": {"grid": devices.DEFAULT_GRID, "dtype": "float32", "padding": "auto", "psf_oversample": 1},
     "fast": {"grid": (192, 256), "dtype": "float32", "padding": "auto", "psf_oversample": 1},
 }
 
