@@ -27,7 +27,7 @@ from torch import nn
 from .encoders.base import _coerce
 from .errors import ConfigError
 from .imaging import area_matrix
-from .settings import Settings, setting
+from .settings import Documented, Settings, setting
 
 __all__ = [
     "CanvasGeometry", "canvas_geometry", "to_canvas", "ObjectState", "Augmentation", "Compose",
@@ -150,7 +150,7 @@ def _uniform(batch: int, lo: Any, hi: Any, device) -> torch.Tensor:
     return lo + (hi - lo) * torch.rand(batch, device=device).double()
 
 
-class Augmentation(nn.Module):
+class Augmentation(Documented, nn.Module):
     """Base class: a random object-plane transform of a canvas ``(B, C, rows, cols)``.
 
     Subclasses set ``name``, ``Config`` (a :class:`Settings` dataclass, SI
@@ -173,9 +173,6 @@ class Augmentation(nn.Module):
         state = ObjectState.initial(geometry, canvas.shape[0], object_height, canvas.device)
         return self.apply(canvas, geometry, state)[0]
 
-    @classmethod
-    def summary(cls) -> str:
-        return (cls.__doc__ or "").strip().splitlines()[0] if cls.__doc__ else ""
 
     def extra_repr(self) -> str:
         return f"config={self.config}"

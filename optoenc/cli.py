@@ -135,8 +135,6 @@ def _quiet_lightning() -> None:
 
 
 def cmd_fit(args, extra) -> int:
-    from omegaconf import OmegaConf
-
     from .rundir import RUN_FILES, new_run_dir
     from .training import fit
 
@@ -160,7 +158,6 @@ def cmd_fit(args, extra) -> int:
     if "verify" in summary:
         line += f"  test_acc@{summary['verify']['preset']} {summary['verify']['test_acc']:.4f}"
     print(f"{line}  ({summary['wall_time_s']:.0f} s)  -> {run_dir}")
-    _ = OmegaConf
     return 0
 
 

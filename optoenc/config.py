@@ -16,7 +16,6 @@ neighbours, and every value is validated against its declared range.
 
 from __future__ import annotations
 
-import dataclasses
 import difflib
 from dataclasses import dataclass
 from typing import Any, Optional
@@ -236,7 +235,3 @@ def build_encoder(run: RunConfig, fidelity: FidelityConfig | None = None):
     """Instantiate the run's encoder (optionally at another fidelity)."""
     cls = get_registry("encoder").get(run.names["encoder"])
     return cls(run.encoder, scene=run.scene, sensor=run.sensor, fidelity=fidelity or run.fidelity)
-
-
-def config_fields(cls: type) -> list[str]:
-    return [f.name for f in dataclasses.fields(cls)]

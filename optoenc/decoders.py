@@ -13,7 +13,7 @@ import torch
 from torch import nn
 
 from .encoders.base import _coerce
-from .settings import Settings, setting
+from .settings import Documented, Settings, setting
 
 __all__ = ["DecoderConfig", "Decoder", "Logistic", "FCNN", "EMBEDDING_NORMS"]
 
@@ -34,7 +34,7 @@ class DecoderConfig(Settings):
     )
 
 
-class Decoder(nn.Module):
+class Decoder(Documented, nn.Module):
     """Base class: embedding ``(B, C, a, b)`` -> logits ``(B, num_classes)``.
 
     Args:
@@ -77,9 +77,6 @@ class Decoder(nn.Module):
             x = (x - self.mean) / self.std
         return self.head(self.norm(x))
 
-    @classmethod
-    def summary(cls) -> str:
-        return (cls.__doc__ or "").strip().splitlines()[0] if cls.__doc__ else ""
 
 
 class Logistic(Decoder):

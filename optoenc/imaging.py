@@ -40,8 +40,7 @@ __all__ = [
     "place",
     "fft_convolve",
     "integrate",
-    "cell_blur",
-    "sensor_matrix",
+    "subcell_psf",
     "correlation_tensor",
     "scene_operator",
     "apply_operator",
@@ -85,27 +84,23 @@ def box_matrix(n_grid: int, n_out: int, dtype=torch.float64) -> torch.Tensor:
     return m / m.sum(dim=1, keepdim=True)
 
 
-def cell_blur(n: int, dtype=torch.float64) -> torch.Tensor:
-    """``(n, n)`` tridiagonal ``[1/8, 3/4, 1/8]``: the piecewise-constant cell model.
+def subcell_psf(psf: torch.Tensor, sub: int) -> torch.Tensor:
+    """A ``(..., H, W)`` PSF of cell averages on a grid ``sub`` (odd) times finer, for the fine-grid pipeline.
 
-    When a scene and a PSF are both represented by their averages over the
-    grid cells (piecewise-constant functions), the exact pixel-integrated
-    continuous convolution is the discrete convolution followed by this kernel
-    along each axis (the box-box autocorrelation, a triangle, integrated over
-    a cell: 1/8, 3/4, 1/8). Without it the grid values act as point masses
-    at the cell centres, a first-order error in the grid pitch.
+    Each cell's value is spread evenly over its ``sub x sub`` fine cells and
+    the array is zero-padded at the end so that its centre index (the axis,
+    see :func:`fft_convolve`) is the centre fine cell of pixel ``(H//2, W//2)``,
+    matching :func:`correlation_tensor` with the same ``sub``.
     """
-    m = torch.eye(n, dtype=dtype) * 0.75
-    if n > 1:
-        off = torch.full((n - 1,), 0.125, dtype=dtype)
-        m = m + torch.diag(off, 1) + torch.diag(off, -1)
-    return m
-
-
-def sensor_matrix(n_grid: int, n_out: int, cells: bool = True, dtype=torch.float64) -> torch.Tensor:
-    """Pixel integration along one axis, with the piecewise-constant cell model when ``cells``."""
-    box = box_matrix(n_grid, n_out, dtype)
-    return box @ cell_blur(n_grid, dtype) if cells else box
+    if sub == 1:
+        return psf
+    fine = psf.repeat_interleave(sub, -2).repeat_interleave(sub, -1) / sub**2
+    pads = []
+    for n in reversed(psf.shape[-2:]):
+        c = (n // 2) * sub + sub // 2
+        length = 2 * c if 2 * c >= n * sub else 2 * c + 1
+        pads += [0, length - n * sub]
+    return F.pad(fine, pads)
 
 
 def placement_matrices(
@@ -186,14 +181,11 @@ def fft_convolve(image: torch.Tensor, psf: torch.Tensor) -> torch.Tensor:
     return full[..., Hp // 2 : Hp // 2 + H, Wp // 2 : Wp // 2 + W]
 
 
-def integrate(image: torch.Tensor, out_shape: tuple[int, int], cells: bool = False) -> torch.Tensor:
-    """Pixel integration: average ``(..., H, W)`` over the ``out_shape`` sensor pixels.
-
-    ``cells=True`` first applies the piecewise-constant cell model (:func:`cell_blur`).
-    """
+def integrate(image: torch.Tensor, out_shape: tuple[int, int]) -> torch.Tensor:
+    """Pixel integration: average ``(..., H, W)`` over the ``out_shape`` sensor pixels."""
     H, W = image.shape[-2:]
-    sy = sensor_matrix(H, out_shape[0], cells).to(image.dtype)
-    sx = sensor_matrix(W, out_shape[1], cells).to(image.dtype)
+    sy = box_matrix(H, out_shape[0]).to(image.dtype)
+    sx = box_matrix(W, out_shape[1]).to(image.dtype)
     return sy @ image @ sx.T
 
 

@@ -26,7 +26,7 @@ from typing import Any, Iterable
 
 from .errors import ConfigError
 
-__all__ = ["Settings", "setting", "validate", "describe", "to_dict"]
+__all__ = ["Settings", "setting", "validate", "describe", "to_dict", "first_line", "Documented"]
 
 
 def setting(
@@ -187,3 +187,17 @@ def to_dict(config: Any) -> dict[str, Any]:
         return v
 
     return plain(config)
+
+
+def first_line(obj: Any) -> str:
+    """The summary line of an object's docstring ("" if it has none)."""
+    doc = (getattr(obj, "__doc__", None) or "").strip()
+    return doc.splitlines()[0] if doc else ""
+
+
+class Documented:
+    """Mixin for plugin base classes: ``summary()`` is the class docstring's first line (listings, docs)."""
+
+    @classmethod
+    def summary(cls) -> str:
+        return first_line(cls)

@@ -8,7 +8,7 @@ from typing import Any, ClassVar, NamedTuple
 import torch
 
 from ..encoders.base import _coerce
-from ..settings import Settings
+from ..settings import Documented, Settings
 
 __all__ = ["DatasetConfig", "Dataset", "Split", "Splits"]
 
@@ -46,7 +46,7 @@ class Splits:
         return {k: len(getattr(self, k).labels) for k in ("train", "val", "test")}
 
 
-class Dataset:
+class Dataset(Documented):
     """Base class: a labelled image dataset loaded into :class:`Splits`.
 
     Subclasses set ``name`` (the registry name), ``Config`` (a dataclass
@@ -67,10 +67,6 @@ class Dataset:
         """The train / val / test splits."""
         raise NotImplementedError
 
-    @classmethod
-    def summary(cls) -> str:
-        """First line of the class docstring (shown in listings)."""
-        return (cls.__doc__ or "").strip().splitlines()[0] if cls.__doc__ else ""
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.config})"

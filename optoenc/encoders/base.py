@@ -21,17 +21,12 @@ from torch import nn
 from .. import devices, imaging
 from ..errors import ConfigError
 from ..geometry import FidelityConfig, Geometry, SceneConfig, SensorConfig
-from ..settings import Settings, setting
+from ..settings import Documented, Settings, setting
 
 __all__ = ["EncoderConfig", "OpticalEncoder"]
 
 #: Above this many operator entries the fine-grid (FFT) path is used instead.
 _MAX_OPERATOR_ENTRIES = 40_000_000
-#: Treat the PSF's grid values as uniform over their cells (see
-#: :func:`optoenc.imaging.cell_blur`) instead of as point masses at the cell
-#: centres. Off: measured with ``optoenc bench`` it gains <= 0.13 % for spread
-#: PSFs but costs 0.25 % for a sub-pixel (lens) PSF, which is no box.
-CELL_MODEL = False
 #: Scene geometries whose correlation tensors are kept (oldest dropped first).
 _MAX_GEOMETRIES = 4
 
@@ -60,7 +55,7 @@ def _coerce(cls: type, value: Any, section: str) -> Any:
     raise ConfigError(section, value, f"must be a {cls.__name__} or a mapping")
 
 
-class OpticalEncoder(nn.Module, abc.ABC):
+class OpticalEncoder(Documented, nn.Module, abc.ABC):
     """An optical encoder: scene ``(B, C, h, w)`` -> sensor embedding ``(B, C_out, a, b)``.
 
     Subclasses set ``name`` (the registry name), ``Config`` (a dataclass
@@ -192,8 +187,8 @@ class OpticalEncoder(nn.Module, abc.ABC):
             # s > 1: the scene is placed and integrated on an s-times finer grid while the
             # PSF's grid values are cell averages: the scene keeps its sub-pixel structure.
             py, px = imaging.placement_matrices(scene_shape, (H * s, W * s), height_px * s, pixel_aspect=self.pixel_aspect)
-            ry = imaging.correlation_tensor(imaging.sensor_matrix(H * s, a, CELL_MODEL), py, H, sub=s)
-            rx = imaging.correlation_tensor(imaging.sensor_matrix(W * s, b, CELL_MODEL), px, W, sub=s)
+            ry = imaging.correlation_tensor(imaging.box_matrix(H * s, a), py, H, sub=s)
+            rx = imaging.correlation_tensor(imaging.box_matrix(W * s, b), px, W, sub=s)
             # Bounded: a learned d2 changes the height every step.
             stale = [k for k in self._op_cache if k[0] == "corr"]
             for k in stale[: max(0, len(stale) - _MAX_GEOMETRIES + 1)]:
@@ -241,8 +236,11 @@ class OpticalEncoder(nn.Module, abc.ABC):
         if method == "operator":
             out = imaging.apply_operator(self.operator((h, w), height), x)
         elif method == "direct":
-            placed = imaging.place(x, self.geometry.grid, self.object_height_px(height), pixel_aspect=self.pixel_aspect)
-            out = imaging.integrate(imaging.fft_convolve(placed, self.psf()[None]), (a, b), cells=CELL_MODEL)
+            s = self.subcells  # the same sub-pixel scene geometry as the operator
+            grid = tuple(n * s for n in self.geometry.grid)
+            placed = imaging.place(x, grid, self.object_height_px(height) * s, pixel_aspect=self.pixel_aspect)
+            psf = imaging.subcell_psf(self.psf(), s)
+            out = imaging.integrate(imaging.fft_convolve(placed, psf[None]), (a, b))
         else:
             raise ConfigError("method", method, "one of 'auto', 'operator', 'direct'")
         return out.to(scene.dtype)
@@ -261,10 +259,6 @@ class OpticalEncoder(nn.Module, abc.ABC):
         return self.add_sensor_noise(clean) if noise else clean
 
     # ----------------------------------------------------------------- description
-    @classmethod
-    def summary(cls) -> str:
-        """First line of the class docstring (shown in listings)."""
-        return (cls.__doc__ or "").strip().splitlines()[0] if cls.__doc__ else ""
 
     def extra_repr(self) -> str:
         return f"name={self.name!r}, config={self.config}"
