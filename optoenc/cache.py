@@ -1,17 +1,19 @@
 """On-disk cache of precomputed (noise-free) embeddings of fixed encoders.
 
-The key hashes everything that affects the embeddings: the encoder's name and
-resolved settings, the scene, sensor and fidelity settings, the dataset
-settings and file contents, what the encoder declares beyond its settings
-(``cache_token()``, e.g. the PSF file's contents) and the source code of the
-modules that compute them. Entries are written atomically and carry a
-checksum; a corrupt entry is detected, reported and recomputed.
+The key is computed from what the embeddings are a function of, never from
+source text: the bytes of the PSF the sensor sees (``encoder.psf()``), the
+embeddings of a fixed probe batch of scenes (so an encoder that overrides
+``measure`` is keyed by what it does), the scene, sensor and fidelity
+settings, the encoder's settings and ``cache_token()``, the dataset's
+settings and content digest, and the entry format. A change anywhere in the
+code the encoder calls (a plugin's module-level helper included) changes the
+PSF or the probe embeddings and so the key. Entries are written atomically
+and carry a checksum; a corrupt entry is detected, reported and recomputed.
 """
 
 from __future__ import annotations
 
 import hashlib
-import inspect
 import io
 import json
 import os
@@ -25,11 +27,19 @@ import torch
 from .rundir import atomic_write_bytes
 from .settings import to_dict
 
-__all__ = ["cache_dir", "embedding_key", "load", "store", "cached"]
+__all__ = ["cache_dir", "embedding_key", "tensor_digest", "load", "store", "cached", "FORMAT"]
 
 ENV = "OPTOENC_CACHE_DIR"
 #: Entry header: format tag, then the CRC-32 of the payload (corruption check; the key is the SHA-256).
 _MAGIC = b"OPTOENC-EMB1"
+#: Version of what an entry holds and how its key is made; bump it when either changes.
+FORMAT = 2
+#: Digests keep this many bits of each value relative to the tensor's peak: far finer than any
+#: physical change, coarse enough that last-bit rounding (thread counts, BLAS) rarely matters
+#: (a rounding flip only costs a recomputation, never a stale entry).
+_DIGEST_BITS = 40
+#: Scenes in the probe batch: a few dataset scenes plus seeded random ones (every pixel lit).
+_PROBE = 4
 
 
 def cache_dir(override: str | None = None) -> Path:
@@ -38,34 +48,59 @@ def cache_dir(override: str | None = None) -> Path:
     return Path(root) / "embeddings"
 
 
-def _code_digest(objs: list[Any]) -> str:
-    h = hashlib.sha256()
-    for obj in objs:
-        try:
-            h.update(inspect.getsource(obj).encode())
-        except (OSError, TypeError):
-            h.update(repr(obj).encode())
+def tensor_digest(t: torch.Tensor) -> str:
+    """SHA-256 of a tensor's values, quantised to ``_DIGEST_BITS`` bits relative to its peak, and its shape."""
+    x = t.detach().to("cpu", torch.float64).contiguous()
+    peak = float(x.abs().max()) if x.numel() else 0.0
+    h = hashlib.sha256(repr((tuple(x.shape), f"{peak:.12e}")).encode())
+    if peak > 0 and x.isfinite().all():
+        h.update(torch.round(x / peak * 2.0**_DIGEST_BITS).to(torch.int64).numpy().tobytes())
+    else:
+        h.update(x.numpy().tobytes())
     return h.hexdigest()
 
 
-def embedding_key(encoder, dataset_config: Any, dataset_token: str = "") -> str:
-    """A hex digest of everything that determines ``encoder``'s embeddings of a dataset."""
-    from . import __version__, imaging
-    from .encoders import base
+def _probe_scenes(scenes: torch.Tensor | None, channels: int, shape: tuple[int, int]) -> torch.Tensor:
+    g = torch.Generator().manual_seed(20240229)
+    rand = torch.rand(_PROBE, channels, *shape, generator=g, dtype=torch.float64)
+    if scenes is None:
+        return rand
+    return torch.cat([scenes[:_PROBE].to(torch.float64), rand])
 
+
+@torch.no_grad()
+def embedding_key(encoder, dataset_config: Any, dataset_token: str = "", scenes: torch.Tensor | None = None) -> str:
+    """A hex digest of everything that determines ``encoder``'s embeddings of a dataset.
+
+    Args:
+        encoder: a fixed (non-learnable) encoder.
+        dataset_config: the dataset's settings.
+        dataset_token: the dataset's content digest.
+        scenes: ``(N, C, h, w)`` scenes of the dataset (the first few are
+            encoded as the probe); default a seeded random 28 x 28 batch.
+    """
+    channels, shape = (1, (28, 28)) if scenes is None else (scenes.shape[1], tuple(scenes.shape[-2:]))
+    was_training = encoder.training
+    encoder.eval()
+    try:
+        probe = encoder.measure(_probe_scenes(scenes, channels, shape).to(torch.float32))
+        psf = encoder.psf()
+    finally:
+        encoder.train(was_training)
     token = encoder.cache_token() if hasattr(encoder, "cache_token") else ""
     material = {
-        "version": __version__,
+        "format": FORMAT,
         "encoder": encoder.name,
         "encoder_config": to_dict(encoder.config),
+        "encoder_token": token,
         "scene": to_dict(encoder.scene_config),
         "sensor": to_dict(encoder.sensor),
         "fidelity": encoder.knobs,
+        "embedding_shape": list(encoder.output_shape),
         "dataset": to_dict(dataset_config),
         "dataset_token": dataset_token,
-        "encoder_token": token,
-        "state": {k: hashlib.sha256(v.detach().cpu().contiguous().numpy().tobytes()).hexdigest() for k, v in encoder.state_dict().items()},
-        "code": _code_digest([imaging, base, type(encoder)]),
+        "psf": tensor_digest(psf),
+        "probe": tensor_digest(probe),
     }
     blob = json.dumps(material, sort_keys=True, default=str).encode()
     return hashlib.sha256(blob).hexdigest()

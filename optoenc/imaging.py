@@ -48,6 +48,8 @@ __all__ = [
     "snr_sigma",
     "quantize",
     "normalize_psf",
+    "normalize_channels",
+    "sensor_psf",
 ]
 
 
@@ -317,15 +319,79 @@ def quantize(signal: torch.Tensor, bits: int, full_scale: torch.Tensor | float |
     return signal + (q - signal).detach()
 
 
-def normalize_psf(psf: torch.Tensor, name: str = "psf") -> torch.Tensor:
-    """Scale a ``(C, H, W)`` intensity PSF so each channel sums to one.
-
-    Raises:
-        PhysicsError: if a channel has no energy or the PSF is not finite.
-    """
+def _check_finite(psf: torch.Tensor, name: str) -> None:
     if not torch.isfinite(psf).all():
         raise PhysicsError(f"{name}: the PSF has NaN or infinite values")
+
+
+def _spectral_weights(psf: torch.Tensor, weights) -> torch.Tensor:
+    """``(C, 1, 1)`` spectral weights of a ``(C, H, W)`` PSF (default: the gray sensor's for 3 channels)."""
+    C = psf.shape[-3]
+    if weights is None:
+        from .devices import GRAYSCALE_WEIGHTS
+
+        weights = GRAYSCALE_WEIGHTS if C == 3 else (1.0,) * C
+    w = torch.as_tensor(weights, dtype=psf.dtype, device=psf.device).reshape(-1)
+    if w.numel() != C:
+        raise ConfigError("weights", tuple(w.tolist()), f"must have one weight per PSF channel ({C})")
+    return w[:, None, None]
+
+
+def normalize_psf(psf: torch.Tensor, weights=None, name: str = "psf") -> torch.Tensor:
+    """Scale a ``(C, H, W)`` intensity PSF by one factor shared by all channels.
+
+    The channels keep their relative transmitted power: the factor makes the
+    spectrally weighted total ``sum_c w_c sum_xy psf_c`` equal one, so the
+    gray sensor's PSF ``sum_c w_c psf_c`` sums to one and an RGB sensor's
+    channels keep the ratios the mask gives them (a dimmed colour filter
+    passes less light). A neutral-density change (every channel scaled by the
+    same factor) leaves the result unchanged: the noise is set by an SNR, so
+    only relative power matters.
+
+    Args:
+        psf: ``(C, H, W)`` non-negative intensity PSF, channels on one power scale.
+        weights: ``(C,)`` spectral weights of the sensor; default
+            :data:`optoenc.devices.GRAYSCALE_WEIGHTS` for 3 channels, 1 for one.
+
+    Raises:
+        PhysicsError: the PSF is not finite or has no weighted energy at all.
+    """
+    _check_finite(psf, name)
+    total = (_spectral_weights(psf, weights) * psf.sum(dim=(-2, -1), keepdim=True)).sum(dim=-3, keepdim=True)
+    if (total <= 0).any():
+        raise PhysicsError(f"{name}: the PSF has zero energy (all-zero or fully opaque); nothing reaches the sensor")
+    return psf / total
+
+
+def normalize_channels(psf: torch.Tensor, name: str = "psf") -> torch.Tensor:
+    """Scale each channel of a ``(C, H, W)`` PSF to sum one on its own.
+
+    Only for PSFs whose channels are not on one power scale, e.g. a measured
+    PSF whose colour balance is that of the lab's light source and sensor, not
+    of the optic. Mask PSFs use :func:`normalize_psf`.
+
+    Raises:
+        PhysicsError: the PSF is not finite, or a channel has no energy.
+    """
+    _check_finite(psf, name)
     total = psf.sum(dim=(-2, -1), keepdim=True)
     if (total <= 0).any():
         raise PhysicsError(f"{name}: the PSF has zero energy (all-zero or fully opaque); nothing reaches the sensor")
     return psf / total
+
+
+def sensor_psf(raw: torch.Tensor, channels: int, weights=None, name: str = "psf") -> torch.Tensor:
+    """The PSF a sensor with ``channels`` (1 gray, 3 RGB) sees, from a ``(C, H, W)`` spectral PSF.
+
+    Channels are normalised jointly (:func:`normalize_psf`). A gray sensor
+    sees ``sum_c w_c psf_c`` (sums to one); an RGB sensor sees the channels
+    themselves (their weighted sums add to one); a 1-channel (achromatic) PSF
+    is shared by all of an RGB sensor's channels (each sums to one).
+    """
+    w = _spectral_weights(raw, weights)
+    psf = normalize_psf(raw, weights, name=name)
+    if channels == 1 and psf.shape[-3] > 1:
+        return (w * psf).sum(dim=-3, keepdim=True)
+    if channels > 1 and psf.shape[-3] == 1:
+        return psf.expand(channels, -1, -1)
+    return psf

@@ -31,7 +31,7 @@ def _save(plt, fig, path: str | Path) -> Path:
 
 
 def spectral_psf(encoder) -> torch.Tensor:
-    """The encoder's PSF per wavelength (R, G, B; or 1 channel if achromatic), each summing to 1, for pictures."""
+    """The encoder's PSF per wavelength (R, G, B; or 1 channel if achromatic), channels keeping their relative power."""
     from .imaging import normalize_psf
 
     with torch.no_grad():

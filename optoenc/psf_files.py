@@ -10,9 +10,9 @@ import numpy as np
 import torch
 
 from .errors import ConfigError
-from .imaging import area_matrix
+from .imaging import area_matrix, normalize_channels
 
-__all__ = ["bundled_psf_path", "read_psf", "subtract_background", "resample_area", "file_digest"]
+__all__ = ["bundled_psf_path", "read_psf", "subtract_background", "resample_area", "file_digest", "measured_psf"]
 
 SUFFIXES = (".png", ".tif", ".tiff", ".npy")
 
@@ -99,3 +99,19 @@ def resample_area(psf: np.ndarray, grid: tuple[int, int], key: str = "encoder.ps
     mx = area_matrix(w, W, 0.0, float(W))
     t = torch.from_numpy(psf)
     return my @ t @ mx.T
+
+
+def measured_psf(path: str | Path, background, grid: tuple[int, int], key: str = "encoder.psf_path") -> torch.Tensor:
+    """A measured PSF file on the ``(H, W)`` grid: read, background removed, area-resampled, float64.
+
+    Each colour channel is scaled to sum one on its own: a measurement's
+    colour balance is that of the lab's light source and sensor, not of the
+    optic (a clear diffuser or lens passes every colour alike).
+
+    Raises:
+        ConfigError: the file is unusable, or all zero after background subtraction.
+    """
+    clean = subtract_background(read_psf(path, key=key), background)
+    if not (clean > 0).any():
+        raise ConfigError(key, str(path), "PSF is all zero after background subtraction")
+    return normalize_channels(resample_area(clean, grid, key=key), name=f"{key} {path}")

@@ -261,8 +261,10 @@ def check_nonnegative(cls: type, **setup: Any) -> str | None:
 
 @_check
 def check_psf(cls: type, **setup: Any) -> str | None:
-    """``psf()`` is ``(channels, H, W)``, finite, non-negative, each channel summing to 1."""
+    """``psf()`` is ``(channels, H, W)``, finite, non-negative; gray sums to 1, RGB's spectrally weighted sums add to 1."""
     import torch
+
+    from .devices import GRAYSCALE_WEIGHTS
 
     label = _label(cls)
     for color in ("gray", "rgb"):
@@ -276,7 +278,8 @@ def check_psf(cls: type, **setup: Any) -> str | None:
         floor = -_tol(psf.dtype) * float(psf.abs().max())
         assert float(psf.min()) >= floor, f"{label}: psf() has negative values ({float(psf.min()):.3g})"
         sums = psf.detach().double().sum(dim=(-2, -1))
-        assert torch.allclose(sums, torch.ones_like(sums), atol=1e-4), f"{label}: psf() channel sums {sums.tolist()} != 1"
+        total = float((torch.tensor(GRAYSCALE_WEIGHTS, dtype=torch.float64) * sums).sum()) if color == "rgb" else float(sums[0])
+        assert abs(total - 1) <= 1e-4, f"{label}: psf() channel sums {sums.tolist()} (weighted total {total}) != 1"
     return None
 
 

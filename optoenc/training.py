@@ -71,7 +71,7 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
     bs, ebs = run.trainer.batch_size, run.trainer.eval_batch_size
     data = {"train": splits.train, "val": splits.val, "test": splits.test}
     if precomputed:
-        key = cache.embedding_key(encoder, run.dataset, splits.digest or _digest(data))
+        key = cache.embedding_key(encoder, run.dataset, splits.digest or _digest(data), scenes=splits.train[0])
         emb, _ = cache.cached(
             key,
             lambda: {k: _encode(encoder, x, ebs, progress, k) for k, (x, _y) in data.items()},

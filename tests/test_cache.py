@@ -88,3 +88,73 @@ def test_warm_cache_is_used_by_a_run(cache_root, tmp_path, quick):
     for split in ("train", "val", "test"):
         assert torch.equal(a.loaders[split].dataset.tensors[0], b.loaders[split].dataset.tensors[0])
     assert list(cache_root.rglob("*.pt")) == files
+
+
+PLUGIN = '''
+import torch
+from optoenc import OpticalEncoder
+
+
+def profile(r):  # module-level helper: the class body below never changes
+    return 1 {sign} torch.cos(r)
+
+
+class Ring(OpticalEncoder):
+    name = "ring_probe"
+
+    def compute_psf(self):
+        H, W = self.geometry.grid
+        y = torch.arange(H, dtype=torch.float64)[:, None] - H // 2
+        x = torch.arange(W, dtype=torch.float64)[None, :] - W // 2
+        return (profile(torch.hypot(y, x) / 3.0) + 1e-3)[None].to(self.optics_dtype)
+'''
+
+
+def _plugin_encoder(tmp_path, sign):
+    import importlib.util
+    import inspect
+    import sys
+
+    path = tmp_path / f"ring_{'plus' if sign == '+' else 'minus'}.py"
+    path.write_text(PLUGIN.format(sign=sign))
+    spec = importlib.util.spec_from_file_location(path.stem, path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[path.stem] = mod
+    spec.loader.exec_module(mod)
+    enc = mod.Ring(fidelity={"grid": (48, 64)}, sensor={"embedding": (6, 8)})
+    return enc, inspect.getsource(mod.Ring)
+
+
+def test_a_plugin_helper_change_changes_the_key(cache_root, tmp_path):
+    # A source-keyed cache hashed the class's source: identical here, so a changed helper
+    # (1 + cos -> 1 - cos) was served stale embeddings. The key now follows the PSF and probe embeddings.
+    from optoenc.datasets.mnist import MNISTConfig
+
+    plus, src_plus = _plugin_encoder(tmp_path, "+")
+    minus, src_minus = _plugin_encoder(tmp_path, "-")
+    assert src_plus == src_minus
+    scenes = torch.rand(4, 1, 28, 28, generator=torch.Generator().manual_seed(0))
+    k_plus = cache.embedding_key(plus, MNISTConfig(), "d", scenes=scenes)
+    assert k_plus == cache.embedding_key(_plugin_encoder(tmp_path, "+")[0], MNISTConfig(), "d", scenes=scenes)
+    assert cache.embedding_key(minus, MNISTConfig(), "d", scenes=scenes) != k_plus
+
+
+def test_an_overridden_measure_changes_the_key(cache_root):
+    # The probe embeddings catch encoders whose embeddings are not the PSF's convolution.
+    from optoenc.datasets.mnist import MNISTConfig
+
+    run = compose(names={"encoder": "diffuser"})
+    enc = build_encoder(run)
+    k = cache.embedding_key(enc, MNISTConfig(), "d")
+    measure = enc.measure
+    enc.measure = lambda scene, height=None, method="auto": measure(scene, height, method).square()
+    assert cache.embedding_key(enc, MNISTConfig(), "d") != k
+
+
+def test_tensor_digest_ignores_last_bit_rounding_but_not_physics():
+    t = torch.rand(64, 64, dtype=torch.float64, generator=torch.Generator().manual_seed(1))
+    assert cache.tensor_digest(t) == cache.tensor_digest(t.clone())
+    # 1e-9 of the peak is a real change: 2^-40 ~ 9e-13 resolves it.
+    t2 = t.clone()
+    t2[3, 3] += 1e-9
+    assert cache.tensor_digest(t2) != cache.tensor_digest(t)

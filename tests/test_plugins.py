@@ -145,7 +145,7 @@ def test_builtins_are_registered_through_the_hooks():
     assert host.pm.has_plugin("builtins")
     # the hook implementations come from optoenc.builtins, like any third-party plugin's
     impls = host.pm.hook.optoenc_register_encoders.get_hookimpls()
-    assert [i.plugin_name for i in impls] == ["builtins"]
+    assert "builtins" in [i.plugin_name for i in impls]  # installed third-party plugins may sit beside it
 
 
 def test_runtime_plugin_registers_and_is_listed():

@@ -224,7 +224,7 @@ def _monochromatic(enc, wavelength: float = MONO_WAVELENGTH) -> None:
     def propagated_psf(mask: torch.Tensor, d2):
         m = mask[1:2] if mask.dim() == 3 and mask.shape[0] == 3 else mask
         psf = intensity_psf(m, (wavelength,), enc.geometry.spacing, enc.scene_config.distance, d2,
-                            padding=enc.fidelity_padding())
+                            padding=enc.fidelity_padding(), normalize="power")
         return psf.to(enc.optics_dtype).reshape(1, *psf.shape[-2:]).expand(3, -1, -1)
 
     enc.propagated_psf = propagated_psf
@@ -595,7 +595,7 @@ def encode_all(encoder: str = "fixed_slm", preset: str = "default", embedding=EM
         enc = build_encoder(encoder, preset_setting(preset, encoder), embedding)
         with tempfile.TemporaryDirectory(prefix="optoenc-bench-") as tmp:
             root = cache_root or tmp
-            key = cache.embedding_key(enc, ds.config, h.hexdigest())
+            key = cache.embedding_key(enc, ds.config, h.hexdigest(), scenes=splits.train[0])
             emb, hit = cache.cached(key, lambda: {k: _encode(enc, x) for k, (x, _y) in data.items()}, root=root)
     t1 = time.perf_counter()
     count = sum(len(v) for v in emb.values())

@@ -18,7 +18,7 @@ from typing import Any, ClassVar, Mapping
 import torch
 from torch import nn
 
-from .. import devices, imaging
+from .. import imaging
 from ..errors import ConfigError
 from ..geometry import FidelityConfig, Geometry, SceneConfig, SensorConfig
 from ..settings import Documented, Settings, setting
@@ -102,6 +102,14 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
     def compute_psf(self) -> torch.Tensor:
         """The un-normalised intensity PSF on the simulation grid.
 
+        The channels must be on one power scale: channel ``c`` is the
+        intensity at the sensor per unit source power at wavelength ``c``, so
+        a colour filter that passes less light gives a dimmer channel (only
+        the ratios matter; one shared factor is removed by :meth:`psf`). A
+        PSF whose channels carry no such meaning (a measured file) is
+        normalised per channel here with
+        :func:`optoenc.imaging.normalize_channels`.
+
         Returns:
             ``(C, H, W)`` non-negative tensor in ``self.optics_dtype``, with
             ``(H, W) = self.geometry.grid``, the optical axis at
@@ -152,11 +160,15 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         ) + tuple((b._version, b.data_ptr()) for b in self.buffers())
 
     def psf(self) -> torch.Tensor:
-        """Normalised intensity PSF as the sensor sees it: ``(channels, H, W)``, each channel summing to 1.
+        """Normalised intensity PSF as the sensor sees it: ``(channels, H, W)``.
 
-        A gray sensor sees the spectral PSF weighted by
-        :data:`optoenc.devices.GRAYSCALE_WEIGHTS`. The PSF is recomputed only
-        when a parameter changes (once per optimiser step when learning).
+        The spectral channels of :meth:`compute_psf` keep their relative
+        power (one normalisation shared by all channels,
+        :func:`optoenc.imaging.normalize_psf`): a gray sensor sees
+        ``sum_c w_c PSF_c`` with :data:`optoenc.devices.GRAYSCALE_WEIGHTS`,
+        summing to one; an RGB sensor sees the channels, whose weighted sums
+        add to one. The PSF is recomputed only when a parameter changes (once
+        per optimiser step when learning).
         """
         key = self._state_key()
         if self._psf_cache is not None and self._psf_cache[0] == key:
@@ -167,13 +179,7 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
                 f"{type(self).__name__}.compute_psf returned shape {tuple(raw.shape)}; "
                 f"expected (1 or 3, {self.geometry.grid[0]}, {self.geometry.grid[1]})"
             )
-        raw = imaging.normalize_psf(raw, name=f"encoder {self.name}")
-        if self.channels == 1 and raw.shape[0] == 3:
-            w = torch.tensor(devices.GRAYSCALE_WEIGHTS, dtype=raw.dtype, device=raw.device)
-            raw = (w[:, None, None] * raw).sum(0, keepdim=True)
-        elif self.channels == 3 and raw.shape[0] == 1:
-            raw = raw.expand(3, -1, -1)
-        psf = raw
+        psf = imaging.sensor_psf(raw, self.channels, name=f"encoder {self.name}")
         self._psf_cache = (key, psf)
         return psf
 

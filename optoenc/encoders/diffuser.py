@@ -49,11 +49,7 @@ class Diffuser(OpticalEncoder):
         return str(self.config.psf_path or psf_files.bundled_psf_path())
 
     def compute_psf(self) -> torch.Tensor:
-        raw = psf_files.read_psf(self.psf_path)
-        clean = psf_files.subtract_background(raw, self.config.background)
-        if not (clean > 0).any():
-            raise ConfigError("encoder.psf_path", self.psf_path, "PSF is all zero after background subtraction")
-        return psf_files.resample_area(clean, self.geometry.grid).to(self.optics_dtype)
+        return psf_files.measured_psf(self.psf_path, self.config.background, self.geometry.grid).to(self.optics_dtype)
 
     def cache_token(self) -> str:
         """What, beyond the config, determines this encoder's PSF: the file's contents."""

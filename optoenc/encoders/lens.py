@@ -143,13 +143,8 @@ class Lens(OpticalEncoder):
     def compute_psf(self) -> torch.Tensor:
         H, W = self.geometry.grid
         if self.config.psf_path is not None:
-            raw = psf_files.read_psf(self.config.psf_path, key="encoder.psf_path")
-            clean = psf_files.subtract_background(raw, self.config.background)
-            if not (clean > 0).any():
-                raise ConfigError(
-                    "encoder.psf_path", self.config.psf_path, "PSF is all zero after background subtraction"
-                )
-            return psf_files.resample_area(clean, (H, W)).to(self._anchor.device, self.optics_dtype)
+            psf = psf_files.measured_psf(self.config.psf_path, self.config.background, (H, W))
+            return psf.to(self._anchor.device, self.optics_dtype)
         n_w = self.d2 / self.aperture_diameter
         blur = self.blur_diameter
         out = torch.zeros(3, H, W, dtype=torch.float64)

@@ -57,7 +57,12 @@ class MaskEncoder(OpticalEncoder):
         return tuple(math.ceil(float(pad) * n) for n in self.field_grid)
 
     def propagated_psf(self, mask: torch.Tensor, d2: float | torch.Tensor) -> torch.Tensor:
-        """``(3, H, W)`` intensity PSF (each channel summing to one) of an amplitude ``mask``.
+        """``(3, H, W)`` intensity PSF of an amplitude ``mask``, channels keeping their transmitted power.
+
+        Channel ``c`` is the fraction of the power incident on the window at
+        wavelength ``c`` that reaches each sensor pixel
+        (``normalize="power"`` of :func:`optoenc.optics.intensity_psf`), so a
+        colour whose filter is dimmed gives a dimmer channel.
 
         Args:
             mask: ``(H, W)`` or ``(3, H, W)`` (one per R, G, B wavelength)
@@ -72,6 +77,7 @@ class MaskEncoder(OpticalEncoder):
             self.scene_config.distance,
             d2,
             padding=self.fidelity_padding(),
+            normalize="power",
         )
         if self.oversample > 1:  # intensity integrated over each grid pixel
             s = self.oversample

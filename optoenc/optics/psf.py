@@ -125,10 +125,13 @@ def intensity_psf(
         padding: ``"auto"``, int pixels per side, or ``(py, px)``.
         bandlimit: apply the BLAS band limit.
         normalize: ``"sum"`` (default): each wavelength's PSF sums to 1 over
-            the window. ``"power"``: ``|U2|^2 / sum |U1-|^2``, so each PSF sums
-            to the fraction of the power incident on the window that reaches
-            the sensor window (~ the mask's mean ``|M|^2``). ``"none"``: raw
-            ``|U2|^2`` for the unit-amplitude source.
+            the window (the relative power of the wavelengths is lost).
+            ``"power"``: ``|U2|^2 / sum |U1-|^2``, so each PSF sums to the
+            fraction of the power incident on the window that reaches the
+            sensor window (~ the mask's mean ``|M|^2`` at that wavelength):
+            the wavelengths keep their relative transmitted power (what an
+            encoder with colour filters needs). ``"none"``: raw ``|U2|^2`` for
+            the unit-amplitude source.
         source_offset: ``(y0, x0)`` lateral position of the point source, metres.
         source_amplitude: ``"unit"`` or ``"spherical"`` (``1/r`` fall-off).
         check: run :func:`~optoenc.optics.diagnostics.check_sampling` (warns
@@ -139,8 +142,10 @@ def intensity_psf(
         single float wavelength).
 
     Raises:
-        PhysicsError: a wavelength's PSF has no energy (an all-zero mask) or is
-            not finite.
+        PhysicsError: the PSF is not finite, or has no energy: with
+            ``normalize="sum"`` at any wavelength (it cannot be scaled to 1),
+            otherwise at every wavelength (an opaque colour filter is physical,
+            an opaque mask is not usable).
     """
     if normalize not in NORMALIZATIONS:
         raise ConfigError("normalize", normalize, f"must be one of {NORMALIZATIONS}")
@@ -154,6 +159,9 @@ def intensity_psf(
     psf = field.real.square() + field.imag.square()
     total = psf.sum(dim=(-2, -1), keepdim=True)
     bad = ~(total.detach() > 0) | ~torch.isfinite(total.detach())
+    if normalize != "sum" and bool(torch.isfinite(total.detach()).all()):
+        # A dark wavelength is physical when the powers are kept; only an all-dark PSF is unusable.
+        bad = bad.all(dim=-3, keepdim=True).expand_as(bad)
     if bool(bad.any()):
         idx = bad.reshape(-1, wl.numel()).any(dim=0).nonzero().reshape(-1).tolist()
         nm = ", ".join(f"{1e9 * float(wl[i]):.0f} nm" for i in idx)

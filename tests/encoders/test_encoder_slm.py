@@ -152,8 +152,7 @@ def test_learned_gradcheck_float64():
     def embed(sub):
         full = torch.cat([sub, base[2:]], dim=0)
         enc.weights = lambda: torch.sigmoid(full)  # instance override: bypasses the PSF cache
-        psf = imaging.normalize_psf(enc.compute_psf())
-        gray = (torch.tensor([0.299, 0.587, 0.114], dtype=psf.dtype)[:, None, None] * psf).sum(0, keepdim=True)
+        gray = imaging.sensor_psf(enc.compute_psf(), 1)
         return imaging.apply_operator(imaging.scene_operator(gray, ry, rx), scene)
 
     sub = base[:2].clone().requires_grad_(True)

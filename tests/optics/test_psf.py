@@ -171,3 +171,12 @@ def test_phase_mask_dispersion():
     assert torch.allclose(t.angle()[:, 0, 0], torch.remainder(expected + math.pi, 2 * math.pi) - math.pi)
     t.real.sum().backward()
     assert torch.isfinite(h.grad).all()
+
+
+def test_dark_wavelength_is_physical_when_powers_are_kept():
+    masks = torch.ones(3, 8, 8, dtype=torch.float64)
+    masks[1] = 0  # an opaque green filter: green gets no light, red and blue keep theirs
+    psf = o.intensity_psf(masks, o.Spectrum.rgb(), 10e-6, 0.4, 1e-3, normalize="power", check=False)
+    assert float(psf[1].sum()) == 0.0 and float(psf[0].sum()) > 0 and float(psf[2].sum()) > 0
+    with pytest.raises(PhysicsError, match="no energy"):
+        o.intensity_psf(torch.zeros(3, 8, 8), o.Spectrum.rgb(), 10e-6, 0.4, 1e-3, normalize="power", check=False)
