@@ -172,14 +172,6 @@ class LearnedSLM(_SLMBase):
         """Current (possibly learned) LCD-to-sensor distance, metres."""
         return float(self.d2_tensor().detach()) if self.log_d2_scale is not None else float(self.config.d2)
 
-    def _correlations(self, scene_shape, height_px, device):
-        # With a learned d2 the magnification changes every step: keep only the latest geometry.
-        if self.log_d2_scale is not None:
-            key = (tuple(scene_shape), round(height_px, 9), self.optics_dtype, str(device))
-            for k in [k for k in self._op_cache if k != "op" and k != key]:
-                del self._op_cache[k]
-        return super()._correlations(scene_shape, height_px, device)
-
 
 def panel_image(encoder: _SLMBase) -> np.ndarray:
     """The ``(128, 160, 3)`` uint8 RGB image an SLM encoder's panel displays (opaque sub-pixels = 0)."""

@@ -172,3 +172,23 @@ def test_learned_psf_recomputed_once_per_step_and_d2():
     assert enc.psf() is not before  # the step invalidates it
     assert enc.d2 != pytest.approx(4e-3, rel=1e-12) and enc.d2 > 0
     assert enc.magnification == pytest.approx(enc.d2 / 0.4)  # magnification follows the learned d2
+
+
+def test_learned_d2_keeps_the_correlations_while_d2_is_unchanged(monkeypatch):
+    """learn_d2 with d2 unchanged: three measurements build the scene correlations once.
+
+    (A subclass override once dropped the base class's cache entry on every call: 3 builds, 6 tensors.)
+    """
+    builds = []
+    real = imaging.correlation_tensor
+    monkeypatch.setattr(imaging, "correlation_tensor", lambda *a, **k: builds.append(1) or real(*a, **k))
+    enc = LearnedSLM({"learn_d2": True}, **SMALL)
+    x = torch.rand(2, 1, 8, 6)
+    with torch.no_grad():
+        outs = [enc.measure(x) for _ in range(3)]
+    assert len(builds) == 2  # one row and one column correlation tensor, built once
+    assert torch.equal(outs[0], outs[2])
+    with torch.no_grad():  # a changed d2 is a new geometry: built again
+        enc.log_d2_scale.fill_(0.1)
+        enc.measure(x)
+    assert len(builds) == 4
