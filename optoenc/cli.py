@@ -241,9 +241,14 @@ def cmd_simulate(args, extra) -> int:
     splits = get_registry("dataset").get(run.names["dataset"])(run.dataset).load()
     x, y = splits.test[0][: args.count], splits.test[1][: args.count]
     out = Path(args.out)
-    for emb_shape in devices.EMBEDDINGS:
+    for i, emb_shape in enumerate(devices.EMBEDDINGS):
         run.sensor = dataclasses.replace(run.sensor, embedding=emb_shape)
         enc = build_encoder(run)
+        if i == 0:  # computed, not quoted: |M| = d2 / d1 on this run's grid
+            H, W = enc.geometry.grid
+            print(f"{enc.name}: the {1e3 * enc.scene_config.object_height:g} mm object at d1 = "
+                  f"{enc.scene_config.distance:g} m is {enc.object_height_px():.1f} px tall on the {H} x {W} grid "
+                  f"(|M| = {enc.magnification:.4g})")
         emb = enc(x)
         path = pictures.save_measurements(out / f"{enc.name}_{emb_shape[0]}x{emb_shape[1]}.png", x, emb, y.tolist())
         print(path)

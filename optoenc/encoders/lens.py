@@ -2,7 +2,9 @@
 
 Model: a thin lens of focal length ``f = 1 / (1 / focus + 1 / d2)`` (7.39 mm
 for a lens focused at 40 cm with the sensor 7.53 mm behind it, REFERENCE §2)
-and a circular aperture of diameter ``D = f / N``. A point at the scene
+and a circular aperture of diameter ``D = f / N``. The lens is focused once,
+at ``focus_distance`` (default 0.40 m, the paper's setting); a scene at
+another distance is out of focus (see :attr:`Lens.blur_diameter`). A point at the scene
 distance ``d1`` images to ``v = 1 / (1 / f - 1 / d1)``; the sensor sits at
 ``d2``. The intensity PSF at wavelength ``lambda`` is
 
@@ -87,8 +89,9 @@ def airy_pixel_psf(
 @dataclass
 class LensConfig(EncoderConfig):
     d2: float = setting(K.LENS_D2, "lens-to-sensor distance d2", unit="m", gt=0)
-    focus_distance: Optional[float] = setting(
-        None, "object distance the lens is focused at (sets f); null: the scene distance d1", unit="m", gt=0
+    focus_distance: float = setting(
+        K.LENS_FOCUS, "object distance the lens is focused at, once (sets f = 1 / (1 / focus + 1 / d2)); "
+        "a scene at another distance d1 is defocused", unit="m", gt=0
     )
     f_number: float = setting(K.LENS_F_NUMBER, "f-number N = f / D of the circular aperture", gt=0)
     psf_path: Optional[str] = setting(
@@ -117,9 +120,8 @@ class Lens(OpticalEncoder):
 
     @property
     def focus_distance(self) -> float:
-        """Object distance in focus, metres."""
-        f = self.config.focus_distance
-        return float(self.scene_config.distance if f is None else f)
+        """Object distance in focus, metres (fixed: the lens does not refocus on the scene)."""
+        return float(self.config.focus_distance)
 
     @property
     def focal_length(self) -> float:
@@ -132,12 +134,17 @@ class Lens(OpticalEncoder):
         return self.focal_length / self.config.f_number
 
     @property
-    def blur_diameter(self) -> float:
-        """Diameter of the geometric defocus disk at the sensor for a point at ``d1``, metres."""
+    def image_distance(self) -> float:
+        """Thin-lens image distance ``v = 1 / (1 / f - 1 / d1)`` of a point at the scene distance, metres."""
         f, d1 = self.focal_length, self.scene_config.distance
         if d1 <= f:
             raise PhysicsError(f"lens: the scene distance {d1} m is inside the focal length {f:.4g} m; no real image")
-        v = 1.0 / (1.0 / f - 1.0 / d1)
+        return 1.0 / (1.0 / f - 1.0 / d1)
+
+    @property
+    def blur_diameter(self) -> float:
+        """Diameter ``D |d2 - v| / v`` of the geometric defocus disk at the sensor for a point at ``d1``, metres."""
+        v = self.image_distance
         return self.aperture_diameter * abs(self.d2 - v) / v
 
     def compute_psf(self) -> torch.Tensor:

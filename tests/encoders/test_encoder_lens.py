@@ -26,7 +26,8 @@ def test_thin_lens_geometry_and_digit_size():
     enc = Lens()
     assert enc.focal_length == pytest.approx(K.LENS_FOCAL_LENGTH)
     assert enc.focal_length == pytest.approx(7.39e-3, abs=5e-6)
-    assert enc.blur_diameter == pytest.approx(0.0, abs=1e-12)  # focused at the scene distance
+    assert enc.focus_distance == K.LENS_FOCUS == 0.40  # the paper's setting
+    assert enc.blur_diameter == pytest.approx(0.0, abs=1e-12)  # the default scene is at the focus distance
     # REFERENCE §2: ~183-184 px for d2 = 7.53 mm on the ~12.3 um grid (1 px: rounding of the quoted value).
     assert enc.object_height_px() == pytest.approx(184, abs=1.0)
 
@@ -67,6 +68,24 @@ def test_defocus_blur_disk():
     # a uniform disk has E[r^2] = R^2 / 2; the pixel box adds (dy^2 + dx^2) / 12.
     expected = np.sqrt(radius**2 / 2 + (dy * dy + dx * dx) / 12)
     # 3 %: the Airy tails and the disk's rasterisation add a little spread.
+    assert _rms_radius(psf, enc.geometry.spacing) == pytest.approx(expected, rel=0.03)
+
+
+@pytest.mark.parametrize("d1", [0.2, 1.0])
+def test_lens_is_focused_once_and_defocuses_other_distances(d1):
+    """The lens stays focused at 0.40 m: a scene at 0.2 m or 1 m sees the thin-lens blur disk D |d2 - v| / v."""
+    f = 1.0 / (1.0 / 0.40 + 1.0 / K.LENS_D2)  # focused at 0.40 m, independently of the encoder's code
+    D = f / K.LENS_F_NUMBER
+    v = 1.0 / (1.0 / f - 1.0 / d1)
+    b = D * abs(K.LENS_D2 - v) / v  # 116 um at 0.2 m, 70 um at 1 m
+    enc = Lens(scene={"distance": d1}, fidelity={"grid": (768, 1024)})  # 5.9 um pixels: the disk spans >= 11 px
+    assert enc.blur_diameter == pytest.approx(b, rel=1e-12)
+    assert b > 60e-6
+    psf = enc.compute_psf()[1]
+    dy, dx = enc.geometry.spacing
+    expected = np.sqrt(b**2 / 8 + (dy * dy + dx * dx) / 12)  # uniform disk E[r^2] = (b/2)^2 / 2, plus the pixel box
+    # 3 %: the Airy tails (~1 um wide) and the disk's rasterisation on the pixel grid add a little spread;
+    # a lens refocused on the scene (blur 0) has an rms radius of ~2 um and fails by a factor > 10.
     assert _rms_radius(psf, enc.geometry.spacing) == pytest.approx(expected, rel=0.03)
 
 
