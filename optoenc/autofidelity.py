@@ -5,6 +5,11 @@ machinery (presets and single-knob sweeps against the float64 high-fidelity
 reference, on the run's own encoder, scene and sensor settings; about a
 minute and several GB for a mask encoder) and caches the decision on disk,
 keyed by everything that affects it. Later runs read the decision.
+
+The decision is stored and returned as explicit knobs (every knob of
+:class:`optoenc.geometry.Knobs` set, ``psf_oversample`` included, after the
+encoder's own ``fidelity_presets``), so a run uses exactly the setting that
+was measured, whatever the preset tables say later.
 """
 
 from __future__ import annotations
@@ -24,11 +29,14 @@ __all__ = ["resolve", "decision_key"]
 
 #: Test digits the error is measured on (fewer than the benchmark's 256: a decision, not a report).
 DIGITS = 64
+#: Version of the stored decision (2: explicit knobs, psf_oversample included).
+FORMAT = 2
 
 
 def decision_key(run) -> str:
     """Digest of what the decision depends on."""
     material = {
+        "format": FORMAT,
         "version": __version__,
         "encoder": run.names["encoder"],
         "config": to_dict(run.encoder),
@@ -60,7 +68,8 @@ def resolve(run, root: str | None = None, measure: Callable[..., Any] | None = N
     if path.exists():
         try:
             info = json.loads(path.read_text())
-            return FidelityConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in info["fidelity"].items()}), info
+            f = FidelityConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in info["fidelity"].items()})
+            return f.replace(tolerance=run.fidelity.tolerance), info
         except (ValueError, KeyError, TypeError, ConfigError):
             path.unlink(missing_ok=True)  # a corrupt decision is measured again
     if measure is None:
@@ -76,9 +85,15 @@ def resolve(run, root: str | None = None, measure: Callable[..., Any] | None = N
         )
     except ConfigError as err:
         raise ConfigError("fidelity.tolerance", run.fidelity.tolerance, f"not met by any measured setting of {name}: {err.allowed}") from None
-    f = choice.fidelity
+    from .plugins import get_registry
+
+    presets = getattr(get_registry("encoder").get(name), "fidelity_presets", {})
+    chosen = choice.fidelity
+    knobs = chosen.resolved(presets)  # every knob explicit, psf_oversample included
+    f = knobs.fidelity(preset=chosen.preset, tolerance=run.fidelity.tolerance)
     info = {
         "fidelity": {k: v for k, v in to_dict(f).items() if k != "tolerance"},
+        "knobs": knobs.to_dict(),
         "tolerance": run.fidelity.tolerance,
         "error": float(choice.row.get("error", float("nan"))),
         "step_s": choice.row.get("step_s"),

@@ -95,7 +95,7 @@ def embedding_key(encoder, dataset_config: Any, dataset_token: str = "", scenes:
         "encoder_token": token,
         "scene": to_dict(encoder.scene_config),
         "sensor": to_dict(encoder.sensor),
-        "fidelity": encoder.knobs,
+        "fidelity": encoder.knobs.to_dict(),
         "embedding_shape": list(encoder.output_shape),
         "dataset": to_dict(dataset_config),
         "dataset_token": dataset_token,

@@ -69,3 +69,16 @@ def test_auto_for_the_lens_end_to_end(tmp_path, monkeypatch, quick):
     run = compose(overrides=quick + ["fidelity.preset=auto", "trainer.max_epochs=1"], names={"encoder": "lens", "decoder": "logistic"})
     summary = fit(run, tmp_path / "run")
     assert summary["fidelity_auto"]["error"] <= 0.01
+
+
+def test_auto_keeps_the_measured_psf_oversample(tmp_path):
+    """The decision is explicit knobs after the encoder's presets: psf_oversample survives, from the disk too."""
+    run = compose(overrides=["fidelity.preset=auto"], names={"encoder": "coded_aperture"})
+    # coded_aperture measures `reference` at 3x oversampling (its fidelity_presets)
+    f, info = autofidelity.resolve(run, root=str(tmp_path), measure=_fake([], FidelityConfig(preset="reference")))
+    assert f.psf_oversample == 3 and f.padding == "auto" and info["knobs"]["psf_oversample"] == 3
+    assert f.resolved().psf_oversample == 3  # explicit: no preset table needed to read it back
+    f2, _ = autofidelity.resolve(run, root=str(tmp_path), measure=None)  # from the disk: nothing measured
+    assert f2 == f
+    run.fidelity = f2  # as `optoenc fit` does
+    assert build_encoder(run).knobs.psf_oversample == 3

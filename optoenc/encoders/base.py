@@ -89,11 +89,12 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         self.config = _coerce(self.Config, config, "encoder")
         self.scene_config = _coerce(SceneConfig, scene, "scene")
         self.sensor = _coerce(SensorConfig, sensor, "sensor")
-        self.fidelity = _coerce(FidelityConfig, fidelity, "fidelity")
-        #: The resolved fidelity knobs (preset, this encoder's overrides, explicit knobs).
-        self.knobs = self.fidelity.resolved(type(self).fidelity_presets)
-        self.geometry = Geometry.of(self.sensor, self.fidelity, type(self).fidelity_presets)
-        self.optics_dtype = getattr(torch, self.knobs["dtype"])
+        #: Bound to this class's ``fidelity_presets``: ``self.fidelity.resolved() == self.knobs``.
+        self.fidelity = _coerce(FidelityConfig, fidelity, "fidelity").bind(type(self).fidelity_presets)
+        #: The resolved fidelity knobs (:class:`optoenc.geometry.Knobs`: preset, this encoder's overrides, explicit knobs).
+        self.knobs = self.fidelity.resolved()
+        self.geometry = Geometry.of(self.sensor, self.fidelity)
+        self.optics_dtype = getattr(torch, self.knobs.dtype)
         self._psf_cache: tuple[Any, torch.Tensor] | None = None
         self._op_cache: dict[Any, Any] = {}
 
@@ -136,7 +137,7 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
     @property
     def subcells(self) -> int:
         """Scene sub-sampling per grid pixel and axis in the operator (``fidelity.psf_oversample``, odd)."""
-        return int(self.knobs.get("psf_oversample") or 1)
+        return self.knobs.psf_oversample
 
     @property
     def pixel_aspect(self) -> float:

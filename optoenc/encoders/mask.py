@@ -26,7 +26,7 @@ class MaskEncoder(OpticalEncoder):
     @property
     def oversample(self) -> int:
         """Field samples per grid pixel and axis (``fidelity.psf_oversample``)."""
-        return int(self.knobs.get("psf_oversample") or 1)
+        return self.knobs.psf_oversample
 
     @property
     def field_grid(self) -> tuple[int, int]:
@@ -51,10 +51,10 @@ class MaskEncoder(OpticalEncoder):
 
     def fidelity_padding(self) -> tuple[int, int] | str:
         """Zero padding per side: ``"auto"``, or grid pixels from a fraction of the grid (``fidelity.padding``)."""
-        pad = self.knobs["padding"]
+        pad = self.knobs.padding
         if pad == "auto":
             return "auto"
-        return tuple(math.ceil(float(pad) * n) for n in self.field_grid)
+        return tuple(math.ceil(pad * n) for n in self.field_grid)
 
     def propagated_psf(self, mask: torch.Tensor, d2: float | torch.Tensor) -> torch.Tensor:
         """``(3, H, W)`` intensity PSF of an amplitude ``mask``, channels keeping their transmitted power.
