@@ -11,9 +11,9 @@ import lightning as L
 
 from .rundir import atomic_write_text
 
-__all__ = ["EpochMetrics", "METRIC_COLUMNS"]
+__all__ = ["EpochMetrics", "EpochTest", "METRIC_COLUMNS"]
 
-METRIC_COLUMNS = ("epoch", "train_loss", "train_acc", "val_loss", "val_acc", "time_s")
+METRIC_COLUMNS = ("epoch", "train_loss", "train_acc", "val_loss", "val_acc", "test_acc", "time_s")
 
 
 class EpochMetrics(L.Callback):
@@ -39,6 +39,7 @@ class EpochMetrics(L.Callback):
             "train_acc": get("train_acc"),
             "val_loss": get("val_loss"),
             "val_acc": get("val_acc"),
+            "test_acc": get("test_acc_epoch"),
             "time_s": f"{time.time() - self._start:.2f}",
         }
         rows = [r for r in read_metrics(self.path) if int(r["epoch"]) < trainer.current_epoch] + [row]
@@ -56,3 +57,35 @@ def read_metrics(path: str | Path) -> list[dict[str, str]]:
         return []
     with open(p, newline="") as fh:
         return list(csv.DictReader(fh))
+
+
+class EpochTest(L.Callback):
+    """Measures test accuracy after every epoch (``test_acc_epoch``), for the paper's "best test" column.
+
+    Each batch is seeded exactly as :meth:`EncoderClassifier.on_test_batch_start`
+    seeds the final test, so the selected epoch's figure equals the reported
+    test accuracy; the global RNG state is restored afterwards (training
+    reseeds per batch anyway). Must come before :class:`EpochMetrics`.
+    """
+
+    def __init__(self, loader):
+        self.loader = loader
+
+    def on_train_epoch_end(self, trainer, pl_module) -> None:
+        import torch
+
+        state, was_training = torch.get_rng_state(), pl_module.training
+        pl_module.eval()
+        correct = total = 0
+        try:
+            with torch.no_grad():
+                for i, (x, y) in enumerate(self.loader):
+                    x, y = x.to(pl_module.device), y.to(pl_module.device)
+                    pl_module.on_test_batch_start((x, y), i)
+                    logits = pl_module(x, augment=pl_module.augment_eval)
+                    correct += int((logits.argmax(1) == y).sum())
+                    total += len(y)
+        finally:
+            pl_module.train(was_training)
+            torch.set_rng_state(state)
+        trainer.callback_metrics["test_acc_epoch"] = torch.tensor(correct / max(total, 1))

@@ -100,6 +100,14 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--tolerance", type=float, default=0.01, help="auto: largest relative embedding error (0.01 = 1%%)")
     b.add_argument("--safety", type=float, default=1.0, help="auto: require error * safety <= tolerance")
     b.add_argument("--from-csv", metavar="CSV", help="auto: choose among the rows of a CSV of `optoenc bench --out`")
+    sw = sub.add_parser("sweep", help="run a sweep of runs from a spec (resumable), collect CSV, tables and plots")
+    sw.add_argument("spec", help="sweep spec YAML (base config, axes, cells, paper figures)")
+    sw.add_argument("--out", metavar="DIR", help="sweep directory (default: sweeps/<spec name>)")
+    sw.add_argument("--dry-run", action="store_true", help="list the cells, their state and estimated time; run nothing")
+    sw.add_argument("--workers", type=int, default=1, help="cells run at once (torch threads split between them)")
+    sw.add_argument("--executor", default="local", help="local (processes), submitit-local or slurm (needs submitit)")
+    sw.add_argument("--restart-changed", action="store_true", help="move aside cells whose stored config differs, re-run them")
+    sw.add_argument("--collect", action="store_true", help="only collect finished cells into the tables and plots")
     return p
 
 
@@ -113,14 +121,17 @@ def _compose(args, extra):
 
 
 def _load_yaml(path: str):
-    from omegaconf import OmegaConf
+    from omegaconf import DictConfig, OmegaConf
 
     if not Path(path).is_file():
         raise ConfigError("--config", path, "file not found")
     try:
-        return OmegaConf.load(path)
+        tree = OmegaConf.load(path)
     except Exception as err:
         raise ConfigError("--config", path, f"not valid YAML ({str(err).splitlines()[0]})") from None
+    if not isinstance(tree, DictConfig):
+        raise ConfigError("--config", path, "must hold a mapping of sections (seed:, encoder:, ...) at its top level, not a list")
+    return tree
 
 
 def _quiet_lightning() -> None:
@@ -346,7 +357,52 @@ def cmd_version() -> int:
     return 0
 
 
+def cmd_sweep(args, extra) -> int:
+    from . import sweep
+
+    spec = sweep.load_spec(args.spec)
+    out = Path(args.out or Path("sweeps") / spec.name)
+    planned = sweep.plan(spec, out)
+    if args.dry_run:
+        from .sweep.estimate import estimate
+
+        est = estimate(planned)
+        total = sum(e["seconds"] for p, e in zip(planned, est.values()) if p.state != "finished")
+        for p in planned:
+            e = est[p.cell.name]
+            print(f"{p.state:11s} {e['seconds']:8.1f} s ({e['source']})  {p.cell.name}")
+        todo = sum(p.state != "finished" for p in planned)
+        print(f"{len(planned)} cells, {todo} to run, estimated {total / 60:.1f} min on one worker -> {out}")
+        return 0
+    if not args.collect:
+        _quiet_lightning()
+        from tqdm.auto import tqdm
+
+        todo = [p for p in planned if p.state != "finished"]
+        print(f"sweep {spec.name}: {len(planned)} cells, {len(todo)} to run -> {out}", file=sys.stderr)
+        with tqdm(total=len(todo), desc="cells", unit="cell", disable=not sys.stderr.isatty()) as bar:
+            def done(p, ok, err):
+                bar.update(1)
+                msg = f"{'done' if ok else 'FAILED'} {p.cell.name}" + (f": {err}" if err else "")
+                (bar.write if sys.stderr.isatty() else lambda m: print(m, file=sys.stderr))(msg)
+
+            failures = sweep.run(planned, out, workers=args.workers, executor=args.executor,
+                                 restart_changed=args.restart_changed, on_done=done)
+        planned = sweep.plan(spec, out)
+    else:
+        failures = {}
+    files = sweep.write_tables(spec, planned, out)
+    for path in files.values():
+        print(path)
+    if failures:
+        print(f"optoenc: {len(failures)} cell(s) failed: {', '.join(sorted(failures))} (see their status.json)",
+              file=sys.stderr)
+        return 1
+    return 0
+
+
 COMMANDS = {
+    "sweep": cmd_sweep,
     "fit": cmd_fit,
     "validate": cmd_evaluate,
     "test": cmd_evaluate,

@@ -17,14 +17,16 @@ neighbours, and every value is validated against its declared range.
 from __future__ import annotations
 
 import difflib
+import re
 from dataclasses import dataclass
 from typing import Any, Optional
 
 from omegaconf import DictConfig, OmegaConf
 from omegaconf import errors as oc_errors
 
+from . import limits
 from .errors import ConfigError
-from .geometry import FidelityConfig, SceneConfig, SensorConfig
+from .geometry import FIDELITY_PRESETS, FidelityConfig, SceneConfig, SensorConfig
 from .plugins import get_registry
 from .settings import Settings, setting
 
@@ -57,11 +59,35 @@ class TrainerConfig(Settings):
     cache_dir: Optional[str] = setting(None, "embedding cache folder (null: $OPTOENC_CACHE_DIR or ~/.cache/optoenc)")
     eval_batch_size: int = setting(1000, "examples per batch when encoding or evaluating", ge=1)
     progress: bool = setting(True, "show progress bars")
-    threads: Optional[int] = setting(None, "torch CPU threads (null: torch's default)", ge=1)
+    threads: Optional[int] = setting(None, "torch CPU threads (null: torch's default; at most 4 x the CPU cores)", ge=1)
     accelerator: str = setting("cpu", "lightning accelerator", choices=("cpu", "gpu", "auto"))
     verify_preset: Optional[str] = setting(
-        "reference", "after training, re-evaluate the final encoder at this fidelity preset (null: skip)"
+        "reference", "after training, re-evaluate the final encoder at this fidelity preset (null: skip)",
+        choices=tuple(FIDELITY_PRESETS),
     )
+    limit_train_batches: float = setting(
+        1.0, "smoke tests: train on this fraction of the batches per epoch (<= 1), or this many batches (a whole "
+        "number > 1); Lightning's limit_train_batches", gt=0,
+    )
+    limit_val_batches: float = setting(1.0, "as limit_train_batches, for validation", gt=0)
+    limit_test_batches: float = setting(1.0, "as limit_train_batches, for the test", gt=0)
+    test_every_epoch: bool = setting(
+        False, "also measure test accuracy after every epoch (metrics.csv column test_acc; the paper's "
+        "'best test over epochs' figure, reported only beside the validation-selected one)"
+    )
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        limits.check_threads("threads", self.threads)
+        for stage in ("train", "val", "test"):
+            v = getattr(self, f"limit_{stage}_batches")
+            if v > 1 and v != int(v):
+                raise ConfigError(f"limit_{stage}_batches", v, "must be a fraction <= 1 or a whole number of batches")
+
+    def batch_limit(self, stage: str) -> int | float:
+        """Lightning's ``limit_<stage>_batches``: a fraction (float <= 1) or a number of batches (int)."""
+        v = getattr(self, f"limit_{stage}_batches")
+        return int(v) if v > 1 else float(v)
 
 
 @dataclass
@@ -70,7 +96,7 @@ class OutputConfig(Settings):
 
     root: str = setting("runs", "folder holding the run directories")
     name: Optional[str] = setting(None, "run directory name (null: <encoder>-<decoder>-<timestamp>)")
-    examples: int = setting(8, "example measurements drawn as pictures", ge=0)
+    examples: int = setting(8, "example measurements drawn as pictures", ge=0, le=64)
 
 
 #: The one table of default plugin names.
@@ -133,16 +159,49 @@ def _keys_at(tree: DictConfig, path: str) -> list[str]:
     return [str(k) for k in node.keys()] if isinstance(node, DictConfig) else []
 
 
-def _translate(err: Exception, tree: DictConfig) -> ConfigError:
-    key = getattr(err, "full_key", None) or "config"
+def _leaves(node: Any, prefix: str = ""):
+    """``(dotted path, value)`` of every leaf of a plain nested dict (lists are leaves)."""
+    if isinstance(node, dict) and node:
+        for k, v in node.items():
+            yield from _leaves(v, f"{prefix}.{k}" if prefix else str(k))
+    else:
+        yield prefix, node
+
+
+def _nested(path: str, value: Any) -> dict:
+    out: Any = value
+    for part in reversed(path.split(".")):
+        out = {part: out}
+    return out
+
+
+def _message(err: Exception) -> str:
+    """omegaconf's first message line without its unfilled ``$VALUE`` templates."""
+    msg = str(err).splitlines()[0]
+    m = re.match(r"\w+ length (\d+) does not match type hint length (\d+)", msg)
+    if m:
+        return f"must have {m.group(2)} values, not {m.group(1)}"
+    msg = msg.replace("Value '$VALUE' of type '$VALUE_TYPE' could not", "an element could not")
+    return msg.replace("$VALUE", "the value")
+
+
+def _translate(err: Exception, schema: DictConfig, user: Any = None) -> ConfigError:
+    """A ConfigError naming the full key path and the value given, found leaf by leaf in ``user``."""
+    culprits = []
+    for path, value in _leaves(user) if isinstance(user, dict) else ():
+        try:
+            OmegaConf.merge(schema, _nested(path, value))
+        except oc_errors.OmegaConfBaseException as leaf_err:
+            culprits.append((path, value, leaf_err))
+            break
+    path, value, err = culprits[0] if culprits else (getattr(err, "full_key", None) or "config", "?", err)
     if isinstance(err, oc_errors.ConfigKeyError):
-        leaf = key.split(".")[-1]
-        known = _keys_at(tree, key)
+        leaf = path.split(".")[-1]
+        known = _keys_at(schema, path)
         close = difflib.get_close_matches(leaf, known, n=3, cutoff=0.5)
         hint = f"did you mean {', '.join(close)}? " if close else ""
-        return ConfigError(key, "?", f"unknown setting; {hint}valid keys here: {', '.join(known)}")
-    msg = str(err).splitlines()[0]
-    return ConfigError(key, "?", msg)
+        return ConfigError(path, value, f"unknown setting; {hint}valid keys here: {', '.join(known)}")
+    return ConfigError(path, value, _message(err))
 
 
 def _names_from(user: DictConfig, cli_names: dict[str, str | None], section: str) -> str:
@@ -175,9 +234,21 @@ def compose(
         ConfigError: unknown key (with the valid neighbours), bad type or
             value out of range; PluginError: unknown plugin name.
     """
-    user = OmegaConf.merge(*(file_configs or [OmegaConf.create({})]))
-    dotlist = OmegaConf.from_dotlist(list(overrides or []))
-    user = OmegaConf.merge(user, dotlist)
+    for i, fc in enumerate(file_configs or []):
+        if not isinstance(fc, DictConfig):
+            raise ConfigError(
+                f"config file {i + 1}", type(fc).__name__, "must hold a mapping of sections (seed:, encoder:, ...) at its top level"
+            )
+    try:
+        user = OmegaConf.merge(*(file_configs or [OmegaConf.create({})]))
+        for item in overrides or []:
+            try:
+                dotlist = OmegaConf.from_dotlist([item])
+            except Exception as err:  # omegaconf grammar or YAML errors of one override
+                raise ConfigError(item.split("=", 1)[0], item.partition("=")[2], f"not a valid value ({_message(err)})") from None
+            user = OmegaConf.merge(user, dotlist)
+    except oc_errors.OmegaConfBaseException as err:
+        raise ConfigError(getattr(err, "full_key", None) or "config", "?", _message(err)) from None
     names = dict(names or {})
     chosen = {s: _names_from(user, names, s) for s in _PLUGIN_SECTIONS}
     classes = {s: get_registry(s).get(chosen[s]) for s in _PLUGIN_SECTIONS}
@@ -200,7 +271,12 @@ def compose(
 
     # Names were resolved above: drop them from the user tree so a file's name
     # cannot contradict the command line.
-    user = OmegaConf.to_container(user, resolve=True) if isinstance(user, DictConfig) else {}
+    try:
+        user = OmegaConf.to_container(user, resolve=True) if isinstance(user, DictConfig) else {}
+    except oc_errors.OmegaConfBaseException as err:
+        key = getattr(err, "full_key", None) or "config"
+        raw = dict(_leaves(OmegaConf.to_container(user, resolve=False))).get(key, "?")
+        raise ConfigError(key, raw, f"cannot be resolved ({_message(err)})") from None
     for s in _PLUGIN_SECTIONS:
         if isinstance(user.get(s), dict):
             user[s].pop("name", None)
@@ -210,10 +286,12 @@ def compose(
         user["augment"] = {k: (v or {}) for k, v in user["augment"].items()}
     try:
         tree = OmegaConf.merge(schema, user)
-    except (oc_errors.ConfigKeyError, oc_errors.ValidationError, oc_errors.ConfigTypeError) as err:
-        raise _translate(err, schema) from None
+    except oc_errors.OmegaConfBaseException as err:
+        raise _translate(err, schema, user) from None
     if seed is not None:
-        tree.seed = int(seed)
+        tree.seed = seed
+    if isinstance(tree.seed, bool) or not isinstance(tree.seed, int) or not 0 <= tree.seed < 2**63:
+        raise ConfigError("seed", tree.seed, "must be an integer >= 0")
 
     def build(section: str, cls: type, node: DictConfig) -> Any:
         data = OmegaConf.to_container(node, resolve=True)

@@ -16,7 +16,6 @@ from typing import Any
 
 import torch
 
-import hashlib
 
 from . import cache, pictures
 from .config import RunConfig, build_encoder
@@ -71,7 +70,7 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
     bs, ebs = run.trainer.batch_size, run.trainer.eval_batch_size
     data = {"train": splits.train, "val": splits.val, "test": splits.test}
     if precomputed:
-        key = cache.embedding_key(encoder, run.dataset, splits.digest or _digest(data), scenes=splits.train[0])
+        key = cache.embedding_key(encoder, run.dataset, splits.content_digest(), scenes=splits.train[0])
         emb, _ = cache.cached(
             key,
             lambda: {k: _encode(encoder, x, ebs, progress, k) for k, (x, _y) in data.items()},
@@ -103,15 +102,6 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
     return Parts(module, splits, loaders, precomputed)
 
 
-def _digest(data: dict[str, tuple[torch.Tensor, torch.Tensor]]) -> str:
-    """Content digest of the scenes, for datasets that give none (the cache must not outlive a changed dataset)."""
-    h = hashlib.sha256()
-    for k in sorted(data):
-        h.update(k.encode())
-        h.update(data[k][0].contiguous().numpy().tobytes())
-    return h.hexdigest()
-
-
 def _encode(encoder, images, batch_size, progress, split):
     if not progress:
         return encode(encoder, images, batch_size)
@@ -126,7 +116,7 @@ def checkpoint_path(run_dir: Path, which: str = "last") -> Path:
     return Path(run_dir) / RUN_FILES["checkpoints"] / f"{which}.ckpt"
 
 
-def _trainer(run: RunConfig, run_dir: Path, logger: bool = True, extra_callbacks=()):
+def _trainer(run: RunConfig, run_dir: Path, logger: bool = True, extra_callbacks=(), test_loader=None):
     import lightning as L
     from lightning.pytorch.callbacks import ModelCheckpoint
 
@@ -146,6 +136,10 @@ def _trainer(run: RunConfig, run_dir: Path, logger: bool = True, extra_callbacks
         *extra_callbacks,
     ]
     if logger:
+        if test_loader is not None and run.trainer.test_every_epoch:
+            from .callbacks import EpochTest
+
+            callbacks.append(EpochTest(test_loader))
         callbacks.append(EpochMetrics(run_dir / RUN_FILES["metrics"]))
     return L.Trainer(
         max_epochs=run.trainer.max_epochs,
@@ -190,7 +184,7 @@ def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> di
     parts = build(run, progress=run.trainer.progress)
     if not resume and parts.module.encoder.learnable:  # a fixed encoder's initial PSF is its final one
         _pictures(parts, run, run_dir, "initial")
-    trainer = _trainer(run, run_dir, extra_callbacks=callbacks)
+    trainer = _trainer(run, run_dir, extra_callbacks=callbacks, test_loader=parts.loaders["test"])
     ckpt = checkpoint_path(run_dir, "last")
     trainer.fit(
         parts.module,
@@ -210,7 +204,8 @@ def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> di
         "best_epoch": _best_epoch(trainer),
         "val_acc": best_val,
         "test_acc": float(test[0]["test_acc"]) if test else float("nan"),
-        "fidelity": parts.module.encoder.knobs,
+        "best_test_acc": _best_test(run_dir),
+        "fidelity": parts.module.encoder.knobs.to_dict(),
         "wall_time_s": round(time.time() - start, 2),
         "encoder": to_dict(run.encoder),
         "scene": to_dict(run.scene),
@@ -223,6 +218,14 @@ def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> di
         summary["verify"] = verify(parts, run, run.trainer.verify_preset)
     write_json(run_dir / RUN_FILES["summary"], summary)
     return summary
+
+
+def _best_test(run_dir: Path) -> float | None:
+    """Best per-epoch test accuracy (``trainer.test_every_epoch``), else None: the paper's selection, for comparison only."""
+    from .callbacks import read_metrics
+
+    vals = [float(r["test_acc"]) for r in read_metrics(run_dir / RUN_FILES["metrics"]) if r.get("test_acc")]
+    return max(vals) if vals else None
 
 
 def _best_epoch(trainer) -> int | None:

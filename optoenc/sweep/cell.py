@@ -1,0 +1,63 @@
+"""Run one sweep cell in this process: ``python -m optoenc.sweep.cell CELL_DIR [THREADS]``.
+
+The cell's ``config.yaml`` is written by the sweep before it starts. A cell
+with a last checkpoint resumes from it; ``status.json`` records running,
+finished or failed (with the one-line error), so a sweep re-run knows what
+to do. Exit code 0 on success, 1 on failure.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+import traceback
+from pathlib import Path
+
+from ..rundir import RUN_FILES, write_json
+from .cells import STATUS
+
+__all__ = ["run_cell", "main"]
+
+
+def run_cell(path: str | Path, threads: int | None = None) -> dict:
+    """Train (or resume) the run in ``path``; returns its summary. Raises on failure (status ``failed``)."""
+    from omegaconf import OmegaConf
+
+    from ..config import compose
+    from ..training import checkpoint_path, fit
+
+    path = Path(path)
+    started = time.time()
+    write_json(path / STATUS, {"state": "running", "pid": os.getpid(), "started": started})
+    try:
+        overrides = [f"trainer.threads={int(threads)}"] if threads else []
+        run = compose([OmegaConf.load(path / RUN_FILES["config"])], overrides)
+        summary = fit(run, path, resume=checkpoint_path(path, "last").is_file())
+    except BaseException as err:
+        line = f"{type(err).__name__}: {err}".splitlines()[0] if str(err) else type(err).__name__
+        write_json(path / STATUS, {"state": "failed", "error": line, "started": started, "ended": time.time(),
+                                   "traceback": traceback.format_exc(limit=8)})
+        raise
+    write_json(path / STATUS, {"state": "finished", "started": started, "ended": time.time()})
+    return summary
+
+
+def main(argv=None) -> int:
+    import logging
+    import warnings
+
+    args = list(sys.argv[1:] if argv is None else argv)
+    for name in ("lightning", "lightning.pytorch", "lightning.fabric", "lightning_utilities"):
+        logging.getLogger(name).setLevel(logging.WARNING)
+    warnings.filterwarnings("ignore", message=".*(does not have many workers|LeafSpec|exists and is not empty).*")
+    try:
+        run_cell(args[0], int(args[1]) if len(args) > 1 else None)
+    except Exception as err:  # the status file holds the details; one line for the sweep's log
+        print(f"optoenc sweep cell failed: {type(err).__name__}: {err}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

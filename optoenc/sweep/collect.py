@@ -1,0 +1,149 @@
+"""Collecting a sweep: one row per cell, seeds aggregated, CSV + markdown + plots.
+
+All accuracies in the sweep's tables are in percent (the paper's unit);
+``summary.json`` of each run keeps fractions.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+from ..callbacks import read_metrics
+from ..rundir import RUN_FILES, atomic_write_text
+from .cells import STATUS
+from .runner import PlannedCell
+from .spec import SweepSpec, _fmt
+
+__all__ = ["cell_rows", "aggregate", "write_tables", "CELL_COLUMNS", "SUMMARY_COLUMNS"]
+
+CELL_COLUMNS = (
+    "cell", "state", "encoder", "embedding", "decoder", "transform", "augment_mode", "seed", "epochs",
+    "best_epoch", "val_acc", "test_acc", "best_test_acc", "reference_test_acc", "paper_acc", "wall_time_s",
+    "epoch_time_s", "error",
+)
+SUMMARY_COLUMNS = (
+    "encoder", "embedding", "decoder", "transform", "augment_mode", "seeds", "test_acc", "test_acc_std",
+    "best_test_acc", "reference_test_acc", "paper_acc", "diff_vs_paper", "wall_time_s",
+)
+
+
+def _pct(x: Any) -> float | None:
+    return None if x is None or (isinstance(x, float) and math.isnan(x)) else round(100 * float(x), 2)
+
+
+def cell_rows(spec: SweepSpec, planned: list[PlannedCell]) -> list[dict[str, Any]]:
+    """One row per cell with what it measured (empty fields for unfinished cells)."""
+    rows = []
+    for p in planned:
+        run = p.run
+        summary, status = {}, {}
+        if (p.path / RUN_FILES["summary"]).is_file():
+            summary = json.loads((p.path / RUN_FILES["summary"]).read_text())
+        if (p.path / STATUS).is_file():
+            try:
+                status = json.loads((p.path / STATUS).read_text())
+            except ValueError:
+                status = {}
+        metrics = read_metrics(p.path / RUN_FILES["metrics"])
+        times = [float(m["time_s"]) for m in metrics if m.get("time_s")]
+        mode = getattr(run.trainer, "augment_mode", "per_epoch") if run.augment else ""
+        rows.append({
+            "cell": p.cell.name,
+            "state": "finished" if summary else ("failed" if status.get("state") == "failed" else p.state),
+            "encoder": run.names["encoder"],
+            "embedding": _fmt(list(run.sensor.embedding)),
+            "decoder": run.names["decoder"],
+            "transform": "+".join(run.augment) or "original",
+            "augment_mode": mode,
+            "seed": run.seed,
+            "epochs": len(metrics) or None,
+            "best_epoch": summary.get("best_epoch"),
+            "val_acc": _pct(summary.get("val_acc")),
+            "test_acc": _pct(summary.get("test_acc")),
+            "best_test_acc": _pct(summary.get("best_test_acc")),
+            "reference_test_acc": _pct((summary.get("verify") or {}).get("test_acc")),
+            "paper_acc": spec.paper_figure(p.cell),
+            "wall_time_s": summary.get("wall_time_s"),
+            "epoch_time_s": round(sum(times) / len(times), 2) if times else None,
+            "error": status.get("error", "") if status.get("state") == "failed" else "",
+        })
+    return rows
+
+
+def _mean_std(vals: list[float]) -> tuple[float | None, float | None]:
+    if not vals:
+        return None, None
+    m = sum(vals) / len(vals)
+    sd = math.sqrt(sum((v - m) ** 2 for v in vals) / (len(vals) - 1)) if len(vals) > 1 else None
+    return round(m, 2), (round(sd, 2) if sd is not None else None)
+
+
+def aggregate(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Finished cells grouped over seeds: mean and sample standard deviation of the test accuracy."""
+    keys = ("encoder", "embedding", "decoder", "transform", "augment_mode")
+    groups: dict[tuple, list[dict[str, Any]]] = {}
+    for r in rows:
+        if r["state"] == "finished":
+            groups.setdefault(tuple(r[k] for k in keys), []).append(r)
+    out = []
+    for key, rs in groups.items():
+        test, sd = _mean_std([r["test_acc"] for r in rs if r["test_acc"] is not None])
+        best, _ = _mean_std([r["best_test_acc"] for r in rs if r["best_test_acc"] is not None])
+        ref, _ = _mean_std([r["reference_test_acc"] for r in rs if r["reference_test_acc"] is not None])
+        paper = rs[0]["paper_acc"]
+        out.append({
+            **dict(zip(keys, key)),
+            "seeds": len(rs),
+            "test_acc": test,
+            "test_acc_std": sd,
+            "best_test_acc": best,
+            "reference_test_acc": ref,
+            "paper_acc": paper,
+            "diff_vs_paper": round(test - paper, 2) if test is not None and paper is not None else None,
+            "wall_time_s": round(sum(r["wall_time_s"] or 0 for r in rs), 1),
+        })
+    return out
+
+
+def _csv(rows: list[dict[str, Any]], columns: tuple[str, ...]) -> str:
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=columns, extrasaction="ignore", lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in columns})
+    return buf.getvalue()
+
+
+def _markdown(rows: list[dict[str, Any]], columns: tuple[str, ...]) -> str:
+    cell = lambda v: "" if v is None else (f"{v:.2f}" if isinstance(v, float) else str(v))  # noqa: E731
+    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    lines += ["| " + " | ".join(cell(r.get(k)) for k in columns) + " |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+def write_tables(spec: SweepSpec, planned: list[PlannedCell], sweep_dir: str | Path) -> dict[str, Path]:
+    """``cells.csv``, ``summary.csv``, ``summary.md`` and the plots under ``sweep_dir``."""
+    from . import plots
+
+    sweep_dir = Path(sweep_dir)
+    rows = cell_rows(spec, planned)
+    agg = aggregate(rows)
+    out = {
+        "cells": atomic_write_text(sweep_dir / "cells.csv", _csv(rows, CELL_COLUMNS)),
+        "summary": atomic_write_text(sweep_dir / "summary.csv", _csv(agg, SUMMARY_COLUMNS)),
+    }
+    done = sum(r["state"] == "finished" for r in rows)
+    md = [f"# Sweep {spec.name}\n", f"{done} of {len(rows)} cells finished. Accuracies in percent; "
+          "test_acc is selected on validation, best_test_acc is the best test accuracy over epochs "
+          "(the paper's selection, shown for comparison only).\n", _markdown(agg, SUMMARY_COLUMNS)]
+    failed = [r for r in rows if r["state"] == "failed"]
+    if failed:
+        md += ["\n## Failed cells\n", _markdown(failed, ("cell", "error"))]
+    out["markdown"] = atomic_write_text(sweep_dir / "summary.md", "\n".join(md))
+    out.update(plots.sweep_plots(rows, planned, sweep_dir))
+    return out

@@ -1,0 +1,105 @@
+"""Time estimates for a sweep's cells (``optoenc sweep --dry-run``), from measured step times.
+
+A cell's cost is epochs x (training steps x step time + evaluation), plus
+the one-off encoding of the dataset for fixed encoders. Step times come from
+finished cells of the same kind in this sweep (their ``metrics.csv``) or,
+failing that, from timing a few real optimiser steps of the cell's own
+encoder and decoder on this machine now.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import torch
+
+from ..callbacks import read_metrics
+from ..rundir import RUN_FILES
+
+__all__ = ["kind_of", "estimate"]
+
+_WARM, _TIMED = 2, 5
+
+
+def kind_of(run) -> tuple:
+    """Cells of one kind cost the same per epoch."""
+    return (run.names["encoder"], run.names["decoder"], tuple(run.sensor.embedding), tuple(run.augment),
+            run.trainer.batch_size, run.trainer.test_every_epoch, str(run.fidelity))
+
+
+def _sizes(run, cache: dict) -> tuple[int, int, int]:
+    from ..plugins import get_registry
+
+    key = (run.names["dataset"], repr(run.dataset))
+    if key not in cache:
+        s = get_registry("dataset").get(run.names["dataset"])(run.dataset).load()
+        cache[key] = (len(s.train[0]), len(s.val[0]), len(s.test[0]), tuple(s.train[0].shape[1:]))
+    return cache[key]
+
+
+def _measure(run, scene_shape) -> dict[str, float]:
+    """Seconds per training step and per encoded example, timed on random data of the cell's shapes."""
+    from ..config import build_encoder
+    from ..module import EncoderClassifier
+    from ..plugins import get_registry
+
+    enc = build_encoder(run)
+    dec = get_registry("decoder").get(run.names["decoder"])(
+        run.decoder, in_shape=enc.output_shape, num_classes=10, learnable_encoder=enc.learnable)
+    pre = run.trainer.precompute and not enc.learnable and not run.augment
+    module = EncoderClassifier(enc, dec, lr=run.trainer.lr, precomputed=pre)
+    opt = module.configure_optimizers()
+    bs = run.trainer.batch_size
+    x = torch.rand(bs, *enc.output_shape) if pre else torch.rand(bs, *scene_shape)
+    y = torch.randint(0, 10, (bs,))
+    times = []
+    for _ in range(_WARM + _TIMED):
+        t0 = time.perf_counter()
+        opt.zero_grad()
+        loss = torch.nn.functional.cross_entropy(module(x, augment=True), y)
+        loss.backward()
+        opt.step()
+        times.append(time.perf_counter() - t0)
+    step = min(times[_WARM:])  # the least disturbed step: other processes only ever add time
+    per_example = 0.0
+    if pre:
+        with torch.no_grad():
+            imgs = torch.rand(1000, *scene_shape)
+            enc.measure(imgs[:10])
+            t0 = time.perf_counter()
+            enc.measure(imgs)
+            per_example = (time.perf_counter() - t0) / 1000
+    return {"step_s": step, "encode_s_per_example": per_example, "precomputed": pre}
+
+
+def estimate(planned, sweep_dir=None) -> dict[str, dict[str, Any]]:
+    """``{cell name: {"seconds": s, "source": "finished cells" | "measured"}}`` for every cell."""
+    known: dict[tuple, float] = {}
+    for p in planned:
+        times = [float(m["time_s"]) for m in read_metrics(p.path / RUN_FILES["metrics"]) if m.get("time_s")]
+        if times:
+            known.setdefault(kind_of(p.run), sorted(times)[len(times) // 2])
+    measured: dict[tuple, dict[str, float]] = {}
+    sizes: dict = {}
+    out = {}
+    for p in planned:
+        run = p.run
+        epochs = run.trainer.max_epochs
+        k = kind_of(run)
+        n_train, n_val, n_test, shape = _sizes(run, sizes)
+        done = len(read_metrics(p.path / RUN_FILES["metrics"])) if p.state != "finished" else epochs
+        left = max(0, epochs - done)
+        if k in known:
+            out[p.cell.name] = {"seconds": round(left * known[k], 1), "source": "finished cells"}
+            continue
+        if k not in measured:
+            measured[k] = _measure(run, shape)
+        m = measured[k]
+        steps = math.ceil(n_train / run.trainer.batch_size)
+        evals = n_val + (n_test if run.trainer.test_every_epoch else 0)
+        per_epoch = steps * m["step_s"] + evals / run.trainer.batch_size * m["step_s"] * 0.4
+        once = (n_train + n_val + n_test) * m["encode_s_per_example"] if p.state == "new" else 0.0
+        out[p.cell.name] = {"seconds": round(left * per_epoch + once, 1), "source": "measured"}
+    return out

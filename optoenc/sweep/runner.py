@@ -1,0 +1,160 @@
+"""Running a sweep: plan the cells, run what is not finished, in parallel processes or on a cluster.
+
+Every cell runs in its own process (a crash, a leak or a thread setting of
+one cell never touches another): locally ``python -m optoenc.sweep.cell``,
+on a cluster through submitit (SLURM, or its local executor). Fixed-encoder
+cells share the on-disk embedding cache, whose writes are atomic.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterable
+
+from ..errors import ConfigError
+from ..rundir import RUN_FILES, atomic_write_text
+from .cells import cell_dir, cell_state, compose_cell
+from .spec import Cell, SweepSpec
+
+__all__ = ["PlannedCell", "plan", "run", "thread_budget", "EXECUTORS"]
+
+#: Where cells run: in local processes, or through submitit.
+EXECUTORS = ("local", "submitit-local", "slurm")
+
+
+@dataclass
+class PlannedCell:
+    cell: Cell
+    path: Path
+    state: str  #: new, finished, interrupted, failed, changed
+    config_yaml: str
+    run: object  #: the RunConfig
+
+    @property
+    def todo(self) -> bool:
+        return self.state in ("new", "interrupted", "failed")
+
+
+def plan(spec: SweepSpec, sweep_dir: str | Path) -> list[PlannedCell]:
+    """Every cell with its state; composing each cell checks all its settings before anything runs."""
+    out = []
+    for cell in spec.expand():
+        try:
+            run = compose_cell(spec, cell, sweep_dir)
+        except ConfigError as err:
+            raise ConfigError(f"sweep cell {cell.name}: {err.key}", err.value, err.allowed) from None
+        yaml = run.to_yaml()
+        path = cell_dir(sweep_dir, cell)
+        out.append(PlannedCell(cell, path, cell_state(path, yaml), yaml, run))
+    return out
+
+
+def thread_budget(workers: int, cores: int | None = None) -> int:
+    """Torch threads per worker: the machine's cores shared evenly (at least one)."""
+    if cores is None:
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, cores // max(1, workers))
+
+
+def _prepare(p: PlannedCell, restart_changed: bool) -> None:
+    if p.state == "changed":
+        if not restart_changed:
+            raise ConfigError(
+                "sweep cell", p.cell.name,
+                f"{p.path} holds a run of another configuration; use --restart-changed to move it aside and re-run",
+            )
+        p.path.rename(p.path.with_name(f"{p.path.name}.old-{time.strftime('%Y%m%d-%H%M%S')}"))
+        p.state = "new"
+    p.path.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(p.path / RUN_FILES["config"], p.config_yaml)
+
+
+def _run_local(p: PlannedCell, threads: int) -> tuple[bool, str]:
+    env = {**os.environ, "OMP_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads)}
+    with open(p.path / "log.txt", "ab") as log:
+        proc = subprocess.run(
+            [sys.executable, "-m", "optoenc.sweep.cell", str(p.path), str(threads)],
+            stdout=log, stderr=subprocess.STDOUT, env=env, stdin=subprocess.DEVNULL,
+        )
+    return proc.returncode == 0, _error(p)
+
+
+def _error(p: PlannedCell) -> str:
+    import json
+
+    try:
+        status = json.loads((p.path / "status.json").read_text())
+    except (OSError, ValueError):
+        return "no status written (killed?)"
+    return status.get("error", "") if status.get("state") != "finished" else ""
+
+
+def _submitit_executor(kind: str, sweep_dir: Path, threads: int, slurm: dict | None):
+    try:
+        import submitit
+    except ImportError:
+        raise ConfigError("--executor", kind, "needs submitit: pip install 'optoenc[cluster]'") from None
+    folder = sweep_dir / "submitit"
+    if kind == "submitit-local":
+        ex = submitit.LocalExecutor(folder=str(folder))
+        ex.update_parameters(timeout_min=int((slurm or {}).get("timeout_min", 24 * 60)))
+    else:
+        ex = submitit.AutoExecutor(folder=str(folder), cluster="slurm")
+        ex.update_parameters(cpus_per_task=threads, **(slurm or {}))
+    return ex
+
+
+def run(
+    planned: Iterable[PlannedCell],
+    sweep_dir: str | Path,
+    workers: int = 1,
+    executor: str = "local",
+    restart_changed: bool = False,
+    slurm: dict | None = None,
+    on_done: Callable[[PlannedCell, bool, str], None] | None = None,
+) -> dict[str, str]:
+    """Run every unfinished cell; returns ``{cell name: error}`` for the cells that failed.
+
+    A failing cell never stops the others. ``workers`` cells run at once,
+    each with :func:`thread_budget` torch threads.
+    """
+    if executor not in EXECUTORS:
+        raise ConfigError("--executor", executor, f"one of {', '.join(EXECUTORS)}")
+    if workers < 1:
+        raise ConfigError("--workers", workers, "must be >= 1")
+    todo = [p for p in planned if p.todo or p.state == "changed"]
+    for p in todo:
+        _prepare(p, restart_changed)
+    threads = thread_budget(workers)
+    failures: dict[str, str] = {}
+
+    def done(p: PlannedCell, ok: bool, err: str) -> None:
+        if not ok:
+            failures[p.cell.name] = err
+        if on_done is not None:
+            on_done(p, ok, err)
+
+    if executor == "local":
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            futures = {pool.submit(_run_local, p, threads): p for p in todo}
+            for fut in as_completed(futures):
+                ok, err = fut.result()
+                done(futures[fut], ok, err)
+        return failures
+    from .cell import run_cell
+
+    ex = _submitit_executor(executor, Path(sweep_dir), threads, slurm)
+    jobs = [(p, ex.submit(run_cell, str(p.path), threads)) for p in todo]
+    for p, job in jobs:
+        try:
+            job.result()
+            done(p, True, "")
+        except Exception:  # submitit wraps the cell's exception; the status file has its line
+            done(p, False, _error(p) or "failed (see the submitit logs)")
+    return failures
