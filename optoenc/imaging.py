@@ -25,13 +25,13 @@ and equals the fine-grid pipeline to rounding.
 
 from __future__ import annotations
 
-import math
 import warnings
 
 import torch
 import torch.nn.functional as F
 
 from .errors import ConfigError, PhysicsError
+from .optics._common import next_fast_size
 
 __all__ = [
     "area_matrix",
@@ -152,23 +152,6 @@ def place(
     return py @ scene @ px.T
 
 
-def _fast_size(n: int) -> int:
-    """Smallest 2^a 3^b 5^c >= n (FFT-friendly)."""
-    best = 1 << max(0, math.ceil(math.log2(max(n, 1))))
-    a = 1
-    while a < best:
-        b = a
-        while b < best:
-            c = b
-            while c < best:
-                if c >= n:
-                    best = c
-                c *= 5
-            b *= 3
-        a *= 2
-    return best
-
-
 def fft_convolve(image: torch.Tensor, psf: torch.Tensor) -> torch.Tensor:
     """Linear (zero-padded) convolution of ``(..., H, W)`` images with a centred PSF.
 
@@ -177,7 +160,7 @@ def fft_convolve(image: torch.Tensor, psf: torch.Tensor) -> torch.Tensor:
     """
     H, W = image.shape[-2:]
     Hp, Wp = psf.shape[-2:]
-    sh, sw = _fast_size(H + Hp - 1), _fast_size(W + Wp - 1)
+    sh, sw = next_fast_size(H + Hp - 1), next_fast_size(W + Wp - 1)
     spec = torch.fft.rfft2(image, s=(sh, sw)) * torch.fft.rfft2(psf, s=(sh, sw))
     full = torch.fft.irfft2(spec, s=(sh, sw))
     return full[..., Hp // 2 : Hp // 2 + H, Wp // 2 : Wp // 2 + W]

@@ -39,18 +39,20 @@ def make_loader(x: torch.Tensor, y: torch.Tensor, batch_size: int, shuffle: bool
 
 
 @torch.no_grad()
-def encode(encoder, images: torch.Tensor, batch_size: int = 1000, progress=None) -> torch.Tensor:
-    """Noise-free embeddings of ``images`` (N, C, h, w), in large batches.
+def encode(encoder, images: torch.Tensor, batch_size: int = 1000, progress=None, method: str = "auto") -> torch.Tensor:
+    """Noise-free embeddings of ``images`` (N, C, h, w), in batches, in eval mode: the one batched encode.
 
     Args:
+        batch_size: images per ``encoder.measure`` call.
         progress: optional callable ``(n_done)`` for a progress bar.
+        method: ``encoder.measure``'s imaging path (``"auto"``, ``"operator"``, ``"direct"``).
     """
     was_training = encoder.training
     encoder.eval()
     out = []
     try:
         for i in range(0, len(images), batch_size):
-            out.append(encoder.measure(images[i : i + batch_size]))
+            out.append(encoder.measure(images[i : i + batch_size], method=method))
             if progress is not None:
                 progress(len(out[-1]))
     finally:

@@ -43,7 +43,6 @@ renders them. Nothing is printed here.
 from __future__ import annotations
 
 import gc
-import hashlib
 import math
 import tempfile
 import time
@@ -58,6 +57,7 @@ from .. import devices
 from ..errors import ConfigError
 from ..settings import to_dict
 from ..geometry import FIDELITY_PRESETS, FidelityConfig
+from ..loaders import encode
 from ..optics import clear_cache, intensity_psf, sampling_report
 
 __all__ = [
@@ -218,18 +218,6 @@ def sweep_settings(encoder_name: str, base: str = "default") -> list[Setting]:
 # ----------------------------------------------------------------------------- encoders
 
 
-def _monochromatic(enc, wavelength: float = MONO_WAVELENGTH) -> None:
-    """Make a mask encoder propagate one wavelength (its G channel's mask) for all colour channels."""
-
-    def propagated_psf(mask: torch.Tensor, d2):
-        m = mask[1:2] if mask.dim() == 3 and mask.shape[0] == 3 else mask
-        psf = intensity_psf(m, (wavelength,), enc.geometry.spacing, enc.scene_config.distance, d2,
-                            padding=enc.fidelity_padding(), normalize="power")
-        return psf.to(enc.optics_dtype).reshape(1, *psf.shape[-2:]).expand(3, -1, -1)
-
-    enc.propagated_psf = propagated_psf
-
-
 def build_encoder(name: str, setting: Setting, embedding=EMBEDDING, setup: Optional[dict] = None):
     """The encoder ``name`` at ``setting``.
 
@@ -246,7 +234,7 @@ def build_encoder(name: str, setting: Setting, embedding=EMBEDDING, setup: Optio
     if setting.wavelengths == 1:
         if not _is_mask_encoder(cls):
             raise ConfigError("wavelengths", 1, f"only mask encoders can be reduced to one wavelength, not {name}")
-        _monochromatic(enc)
+        enc.set_monochromatic(MONO_WAVELENGTH)
     return enc
 
 
@@ -255,7 +243,7 @@ def paper_forward(enc, scene: torch.Tensor, recompute_psf: bool = True, noise: b
     from ..encoders.mask import MaskEncoder
 
     if recompute_psf and isinstance(enc, MaskEncoder):
-        enc._psf_cache = None  # the paper recomputed the PSF (BLAS) at every step
+        enc.invalidate_psf()  # the paper recomputed the PSF (BLAS) at every step
     clean = enc.measure(scene, method="direct")
     return enc.add_sensor_noise(clean) if noise else clean
 
@@ -263,14 +251,8 @@ def paper_forward(enc, scene: torch.Tensor, recompute_psf: bool = True, noise: b
 @torch.no_grad()
 def embed(enc, images: torch.Tensor, method: str = "operator", chunk: int = 64) -> torch.Tensor:
     """Noise-free float64 embeddings of ``images`` (eval mode)."""
-    was = enc.training
-    enc.eval()
-    try:
-        x = images.to(torch.float64)
-        step = len(x) if method == "operator" else chunk
-        return torch.cat([enc.measure(x[i : i + step], method=method).double() for i in range(0, len(x), step)])
-    finally:
-        enc.train(was)
+    step = max(len(images), 1) if method == "operator" else chunk
+    return encode(enc, images.to(torch.float64), step, method=method).double()
 
 
 def relative_error(e: torch.Tensor, ref: torch.Tensor) -> float:
@@ -359,12 +341,6 @@ def _train_step(enc, images: torch.Tensor, labels: torch.Tensor, paper: bool, se
     return step
 
 
-def _encode(enc, images: torch.Tensor, batch_size: int = 1000) -> torch.Tensor:
-    from ..loaders import encode
-
-    return encode(enc, images, batch_size)
-
-
 # ----------------------------------------------------------------------------- the run
 
 
@@ -438,7 +414,7 @@ def _measure(name: str, s: Setting, data: _Data, ref: Optional[torch.Tensor], em
             return row, e
         if not cls.learnable and not paper:
             # Cold: fresh encoder, transfer-function cache cleared; PSF + operator + encoding.
-            _encode(enc, data.encode)
+            encode(enc, data.encode)
             row["encode_s"] = time.perf_counter() - t0
             row["psf_s"] = None
         else:
@@ -585,18 +561,14 @@ def encode_all(encoder: str = "fixed_slm", preset: str = "default", embedding=EM
     ds = MNIST()
     splits = ds.load()
     data = {"train": splits.train, "val": splits.val, "test": splits.test}
-    h = hashlib.sha256()
-    for k in sorted(data):
-        h.update(k.encode())
-        h.update(data[k][0].contiguous().numpy().tobytes())
     t_load = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         enc = build_encoder(encoder, preset_setting(preset, encoder), embedding)
         with tempfile.TemporaryDirectory(prefix="optoenc-bench-") as tmp:
             root = cache_root or tmp
-            key = cache.embedding_key(enc, ds.config, h.hexdigest(), scenes=splits.train[0])
-            emb, hit = cache.cached(key, lambda: {k: _encode(enc, x) for k, (x, _y) in data.items()}, root=root)
+            key = cache.embedding_key(enc, ds.config, splits.content_digest(), scenes=splits.train[0])
+            emb, hit = cache.cached(key, lambda: {k: encode(enc, x) for k, (x, _y) in data.items()}, root=root)
     t1 = time.perf_counter()
     count = sum(len(v) for v in emb.values())
     return {

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 from typing import Any, ClassVar, NamedTuple
 
@@ -40,6 +41,23 @@ class Splits:
     #: Digest of the source data (e.g. its files' checksums), so caches need
     #: not hash the tensors; "" when unknown (callers then hash the tensors).
     digest: str = ""
+
+    def content_digest(self) -> str:
+        """The dataset's digest for caches: :attr:`digest` if the dataset gives one, else SHA-256 of the splits.
+
+        The one dataset digest of optoenc (the embedding cache and the
+        benchmarks key on it). Hashing 70,000 MNIST digits takes ~0.1 s; a
+        dataset read from files gives their checksums as ``digest`` instead.
+        """
+        if self.digest:
+            return self.digest
+        h = hashlib.sha256(str(self.num_classes).encode())
+        for k in ("train", "val", "test"):
+            images, labels = getattr(self, k)
+            h.update(k.encode() + repr((tuple(images.shape), str(images.dtype))).encode())
+            h.update(images.detach().cpu().contiguous().numpy().tobytes())
+            h.update(labels.detach().cpu().contiguous().numpy().tobytes())
+        return h.hexdigest()
 
     def sizes(self) -> dict[str, int]:
         """Number of examples per split."""
