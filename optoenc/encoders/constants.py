@@ -1,74 +1,10 @@
-"""Device constants of the built-in encoders (paper A.5.2, A.6; REFERENCE §2), SI units.
+"""Device constants: a thin re-export of :mod:`optoenc.devices`, the one source of truth.
 
-One source of truth for the LCD (ST7735R), the lens and the coded aperture:
-encoders and tests read these names, never literals.
+Kept so that ``from optoenc.encoders import constants as K`` keeps working;
+define new constants in :mod:`optoenc.devices`.
 """
 
 from __future__ import annotations
 
-__all__ = [
-    "ST7735R_PIXELS",
-    "ST7735R_SUBPIXELS",
-    "ST7735R_CELL",
-    "ST7735R_ACTIVE_AREA",
-    "ST7735R_PITCH",
-    "ST7735R_FILL_FACTOR",
-    "ST7735R_RGB565_BITS",
-    "SLM_APERTURE",
-    "SLM_D2",
-    "LENS_D2",
-    "LENS_FOCUS",
-    "LENS_FOCAL_LENGTH",
-    "LENS_F_NUMBER",
-    "MLS_ORDER",
-    "MLS_REPEATS",
-    "MLS_FEATURE",
-    "MLS_D2",
-    "PHASE_MASK_D2",
-]
-
-# ----------------------------------------------------------------- ST7735R LCD (Adafruit 1.8")
-#: RGB pixels (rows, columns); each pixel is 3 sub-pixels (R, G, B) stacked along the rows.
-ST7735R_PIXELS = (128, 160)
-#: Sub-pixels (rows, columns): sub-pixel row ``k`` carries colour ``k % 3`` (R, G, B).
-ST7735R_SUBPIXELS = (3 * ST7735R_PIXELS[0], ST7735R_PIXELS[1])
-#: Transparent cell of one sub-pixel (rows, columns), metres (datasheet: 0.06 x 0.18 mm).
-ST7735R_CELL = (0.06e-3, 0.18e-3)
-#: Active area (rows, columns), metres: from the first cell's outer edge to the last's.
-ST7735R_ACTIVE_AREA = (28.03e-3, 35.04e-3)
-#: Sub-pixel pitch (rows, columns), metres: (active - cell) / (n - 1) = 73.03 x 219.25 um.
-ST7735R_PITCH = tuple(
-    (a - c) / (n - 1) for a, c, n in zip(ST7735R_ACTIVE_AREA, ST7735R_CELL, ST7735R_SUBPIXELS)
-)
-#: Open fraction of the panel area (opaque deadspace around each cell): 0.675.
-ST7735R_FILL_FACTOR = (ST7735R_CELL[0] / ST7735R_PITCH[0]) * (ST7735R_CELL[1] / ST7735R_PITCH[1])
-#: RGB565 bits per sub-pixel colour (R, G, B).
-ST7735R_RGB565_BITS = (5, 6, 5)
-#: Fraction of the sensor (each axis) left open by the SLM crop: 51 x 22 sub-pixels.
-SLM_APERTURE = 0.8
-#: SLM-to-sensor distance, metres.
-SLM_D2 = 4e-3
-
-# ----------------------------------------------------------------- lens (6 mm wide angle for the RPi HQ)
-#: Lens-to-sensor distance, metres.
-LENS_D2 = 7.53e-3
-#: Distance the lens is focused at, metres.
-LENS_FOCUS = 0.40
-#: Thin-lens focal length focusing LENS_FOCUS onto LENS_D2: ~7.39 mm.
-LENS_FOCAL_LENGTH = 1.0 / (1.0 / LENS_FOCUS + 1.0 / LENS_D2)
-#: Aperture f-number (datasheet of the Adafruit 4563 6 mm lens: F1.2).
-LENS_F_NUMBER = 1.2
-
-# ----------------------------------------------------------------- coded aperture (FlatCam-style MLS)
-#: scipy.signal.max_len_seq order: length 2**6 - 1 = 63.
-MLS_ORDER = 6
-#: Repetitions of the sequence along each axis (63 -> 126).
-MLS_REPEATS = 2
-#: Feature (mask cell) size, metres: 126 x 30 um = 3.78 mm, ~80 % of the sensor height.
-MLS_FEATURE = 30e-6
-#: Mask-to-sensor distance, metres (as FlatCam).
-MLS_D2 = 0.5e-3
-
-# ----------------------------------------------------------------- phase mask (PhlatCam-style)
-#: Phase-mask-to-sensor distance, metres.
-PHASE_MASK_D2 = 2e-3
+from ..devices import *  # noqa: F401,F403  (re-exported)
+from ..devices import __all__  # noqa: F401
