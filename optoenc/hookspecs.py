@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import pluggy
 
+from .registry import KINDS
+
 __all__ = ["PROJECT", "hookspec", "hookimpl", "HOOKS"]
 
 PROJECT = "optoenc"
@@ -43,10 +45,6 @@ def optoenc_register_datasets(registry):
     """Register `Dataset` classes (scenes with labels)."""
 
 
-#: hook name -> registry kind, in registration order.
-HOOKS = {
-    "optoenc_register_encoders": "encoder",
-    "optoenc_register_decoders": "decoder",
-    "optoenc_register_augmentations": "augmentation",
-    "optoenc_register_datasets": "dataset",
-}
+#: hook name -> registry kind, in registration order: one hook per kind of
+#: :data:`optoenc.registry.KINDS` (the one list of plugin kinds).
+HOOKS = {f"optoenc_register_{kind}s": kind for kind in KINDS}
