@@ -201,7 +201,8 @@ def cmd_export(args, extra) -> int:
 
     run = _run_config(args.run, extra)
     enc = load_encoder(run, Path(args.run), args.which)
-    if not hasattr(enc, "mask") or enc.mask().shape != (384, 160):
+    mask = enc.mask()
+    if mask is None or tuple(mask.shape) != (384, 160):
         raise ConfigError("--run", args.run, f"encoder {enc.name!r} has no ST7735R panel pattern to export")
     from .encoders.slm import panel_image
     import io
@@ -235,8 +236,9 @@ def cmd_psf(args, extra) -> int:
     enc = build_encoder(run)
     out = Path(args.out)
     pictures.save_psf(out, pictures.spectral_psf(enc), enc.geometry.spacing, f"{enc.name} PSF")
-    if hasattr(enc, "mask"):
-        pictures.save_mask(out.with_name(out.stem + "_mask.png"), enc.mask(), f"{enc.name} mask")
+    mask = enc.mask()
+    if mask is not None:
+        pictures.save_mask(out.with_name(out.stem + "_mask.png"), mask, f"{enc.name} mask")
     print(out)
     return 0
 

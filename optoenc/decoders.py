@@ -37,15 +37,37 @@ class DecoderConfig(Settings):
 class Decoder(Documented, nn.Module):
     """Base class: embedding ``(B, C, a, b)`` -> logits ``(B, num_classes)``.
 
+    A subclass sets ``name`` (the registry name), ``Config`` (a dataclass
+    deriving from :class:`DecoderConfig`), optionally ``flatten``, and
+    implements :meth:`build`. The framework constructs it with keyword
+    arguments it derives itself (never configured by the user)::
+
+        MyDecoder(config, in_shape=encoder.output_shape, num_classes=splits.num_classes,
+                  learnable_encoder=encoder.learnable)
+
+    ``forward`` normalises the embedding (``embedding_norm``), then hands it
+    to the module :meth:`build` returned: flattened to ``(B, C * a * b)``
+    (``flatten = True``, the default) or in its shape ``(B, C, a, b)``
+    (``flatten = False``, e.g. for a CNN). The logits must not be softmaxed:
+    the training module applies the cross-entropy.
+
     Args:
-        config: the decoder's ``Config`` (or a mapping).
-        in_shape: ``(C, a, b)`` of one embedding (from the encoder, never configured).
-        num_classes: number of classes (from the dataset).
-        learnable_encoder: resolves ``embedding_norm='auto'``.
+        config: the decoder's ``Config`` (or a mapping of its fields).
+        in_shape: ``(C, a, b)`` of one embedding: ``C`` is 1 (gray sensor) or
+            3 (RGB), ``(a, b)`` the ``sensor.embedding``, anything from 1 x 1 up.
+        num_classes: number of classes (from the dataset's :class:`~optoenc.datasets.base.Splits`).
+        learnable_encoder: whether the encoder is trained too; resolves
+            ``embedding_norm='auto'``.
+
+    Attributes available to :meth:`build`: ``self.config``, ``self.in_shape``,
+    ``self.in_features`` (``C * a * b``), ``self.num_classes``,
+    ``self.norm_kind`` (the resolved ``embedding_norm``).
     """
 
     name: ClassVar[str] = ""
     Config: ClassVar[type] = DecoderConfig
+    #: True: :meth:`build`'s module receives ``(B, C * a * b)``; False: ``(B, C, a, b)``.
+    flatten: ClassVar[bool] = True
 
     def __init__(self, config: Any = None, *, in_shape: tuple[int, ...], num_classes: int = 10, learnable_encoder: bool = False):
         super().__init__()
@@ -63,7 +85,11 @@ class Decoder(Documented, nn.Module):
         self.head = self.build()
 
     def build(self) -> nn.Module:
-        """The classifier on the flattened, normalised embedding."""
+        """The classifier: a module from the normalised embedding to ``(B, num_classes)`` logits.
+
+        It receives ``(B, self.in_features)`` when ``flatten`` is true,
+        ``(B, *self.in_shape)`` otherwise.
+        """
         raise NotImplementedError
 
     def set_statistics(self, mean: float, std: float) -> None:
@@ -72,11 +98,12 @@ class Decoder(Documented, nn.Module):
         self.std.fill_(max(float(std), torch.finfo(torch.float32).tiny))
 
     def forward(self, embedding: torch.Tensor) -> torch.Tensor:
+        """Logits ``(B, num_classes)`` of embeddings ``(B, *in_shape)``."""
         x = embedding.flatten(1)
         if self.norm_kind == "standardize":
             x = (x - self.mean) / self.std
-        return self.head(self.norm(x))
-
+        x = self.norm(x)
+        return self.head(x if self.flatten else x.view(-1, *self.in_shape))
 
 
 class Logistic(Decoder):

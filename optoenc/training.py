@@ -160,8 +160,9 @@ def _pictures(parts: Parts, run: RunConfig, run_dir: Path, tag: str) -> None:
     with torch.no_grad():
         psf = pictures.spectral_psf(enc)
         pictures.save_psf(pic / f"psf_{tag}.png", psf, enc.geometry.spacing, f"{enc.name} PSF ({tag})")
-        if hasattr(enc, "mask"):
-            pictures.save_mask(pic / f"mask_{tag}.png", enc.mask(), f"{enc.name} mask ({tag})")
+        mask = enc.mask()
+        if mask is not None:
+            pictures.save_mask(pic / f"mask_{tag}.png", mask, f"{enc.name} mask ({tag})")
         n = run.output.examples
         if n and tag != "initial":
             x, y = parts.splits.test[0][:n], parts.splits.test[1][:n]

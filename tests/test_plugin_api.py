@@ -14,3 +14,84 @@ def test_one_list_of_plugin_kinds_has_one_hook_each():
     assert list(hookspecs.HOOKS.values()) == list(KINDS)
     for hook in hookspecs.HOOKS:
         assert callable(getattr(hookspecs, hook)), f"no hook specification {hook}"
+
+
+def test_public_names_are_exported():
+    from optoenc.datasets.base import Dataset, Splits
+    from optoenc.decoders import DecoderConfig
+    from optoenc.encoders.mask import MaskEncoder
+    from optoenc.geometry import Knobs
+
+    assert optoenc.DecoderConfig is DecoderConfig and optoenc.MaskEncoder is MaskEncoder
+    assert optoenc.Dataset is Dataset and optoenc.Splits is Splits and optoenc.Knobs is Knobs
+
+
+class TinyCNN(optoenc.Decoder):
+    """A small CNN on the embedding's shape (flatten = False)."""
+
+    name = "tiny_cnn"
+    flatten = False
+
+    def build(self):
+        from torch import nn
+
+        return nn.Sequential(
+            nn.Conv2d(self.in_shape[0], 4, 3, padding=1), nn.ReLU(), nn.AdaptiveAvgPool2d(1), nn.Flatten(),
+            nn.Linear(4, self.num_classes),
+        )
+
+
+@pytest.mark.parametrize("learnable", [False, True])
+def test_a_decoder_can_ask_for_the_embedding_shape(learnable):
+    seen = []
+    dec = TinyCNN(in_shape=(3, 6, 8), num_classes=5, learnable_encoder=learnable)
+    dec.head.register_forward_pre_hook(lambda m, args: seen.append(tuple(args[0].shape)))
+    out = dec(torch.rand(4, 3, 6, 8))
+    assert seen == [(4, 3, 6, 8)] and tuple(out.shape) == (4, 5)
+
+
+def test_flat_decoders_are_unchanged():
+    from optoenc.decoders import Logistic
+
+    dec = Logistic({"embedding_norm": "none"}, in_shape=(1, 3, 4), num_classes=3)
+    x = torch.rand(2, 1, 3, 4)
+    assert torch.equal(dec(x), dec.head(x.flatten(1)))
+
+
+def test_mask_picture_hook_is_part_of_the_encoder_interface():
+    from optoenc.encoders.coded_aperture import CodedAperture
+    from optoenc.encoders.lens import Lens
+
+    small = {"fidelity": {"grid": (48, 64)}, "sensor": {"embedding": (6, 8)}}
+    assert Lens(**small).mask() is None  # documented default: no mask picture
+    enc = CodedAperture(**small)
+    assert tuple(enc.mask().shape) == enc.field_grid
+
+
+@pytest.mark.filterwarnings("ignore::optoenc.optics.SamplingWarning")  # a 24 x 32 grid aliases the source wave
+def test_a_phase_mask_is_its_phase():
+    """MaskEncoder.phase(): transmittance aperture * exp(1j phase); a constant phase leaves the PSF unchanged."""
+    from optoenc import EncoderConfig, MaskEncoder
+
+    class Flat(MaskEncoder):
+        """Open window, constant phase."""
+
+        name, Config, learnable, linear = "flat", EncoderConfig, False, True
+
+        def phase(self):
+            y, x = self.field_coordinates()
+            return torch.full((len(y), len(x)), 0.3, dtype=y.dtype)
+
+    class Open(Flat):
+        """Open window, amplitude one."""
+
+        def mask(self):
+            return self.aperture()
+
+    small = {"fidelity": {"grid": (24, 32), "dtype": "float64"}, "sensor": {"embedding": (3, 4)}}
+    a, b = Flat(**small), Open(**small)
+    assert a.mask().is_complex() and torch.allclose(a.mask().abs(), b.mask())
+    # float64 propagation of the same |t|: identical intensities up to round-off
+    assert torch.allclose(a.psf(), b.psf(), rtol=1e-10, atol=1e-14)
+    with pytest.raises(NotImplementedError, match="mask\\(\\) .* or phase\\(\\)"):
+        MaskEncoder.phase(a)

@@ -262,10 +262,10 @@ def relative_error(e: torch.Tensor, ref: torch.Tensor) -> float:
 
 def _mask_phase_step(enc) -> float:
     """Largest phase change (rad) of a complex mask between neighbouring open grid pixels (0 for real masks)."""
-    if not hasattr(enc, "mask"):
-        return 0.0
     with torch.no_grad():
         m = enc.mask()
+    if m is None:
+        return 0.0
     if not torch.is_complex(m) or tuple(m.shape[-2:]) != tuple(enc.geometry.grid):
         return 0.0
     step = 0.0

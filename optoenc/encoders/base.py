@@ -118,6 +118,18 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
             at :data:`optoenc.devices.WAVELENGTHS_RGB`).
         """
 
+    # ----------------------------------------------------------------- optional hook
+    def mask(self) -> torch.Tensor | None:
+        """The optical element's transmittance, for pictures; ``None`` (the default): no mask picture.
+
+        Override it to have ``optoenc psf`` and every run save a mask picture
+        next to the PSF: a real ``(H, W)`` or ``(3, H, W)`` amplitude in
+        ``[0, 1]`` (drawn as gray or RGB), or a complex transmittance (drawn
+        as a phase map). :class:`~optoenc.encoders.mask.MaskEncoder`
+        propagates what it returns.
+        """
+        return None
+
     # ----------------------------------------------------------------- geometry
     @property
     def d2(self) -> float:

@@ -1,14 +1,17 @@
-"""`MaskEncoder`: the shared base of every encoder whose PSF is propagated from a mask.
+"""`MaskEncoder`: the public base of every encoder whose PSF is propagated from a mask.
 
-Coded aperture, LCD/SLM and phase-mask encoders supply a transmittance on the
-wave-field grid (the simulation grid refined ``fidelity.psf_oversample``
-times); the PSF is point source at ``d1`` -> mask -> band-limited angular
-spectrum over ``d2`` -> ``|U|^2`` at the R, G, B wavelengths in one batched
-FFT, integrated over each grid pixel.
+Coded aperture, LCD/SLM and phase-mask encoders (and mask plugins) supply a
+transmittance on the wave-field grid (the simulation grid refined
+``fidelity.psf_oversample`` times); the PSF is point source at ``d1`` ->
+mask -> band-limited angular spectrum over ``d2`` -> ``|U|^2`` at the R, G,
+B wavelengths in one batched FFT, integrated over each grid pixel. A new
+amplitude mask is a subclass with :meth:`MaskEncoder.mask`, a phase mask one
+with :meth:`MaskEncoder.phase`; see docs/plugin-authoring.md.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import torch
@@ -21,7 +24,66 @@ __all__ = ["MaskEncoder"]
 
 
 class MaskEncoder(OpticalEncoder):
-    """Base of the encoders whose PSF is point source -> mask -> BLAS over ``d2`` -> ``|U|^2``."""
+    """Base of the encoders whose PSF is point source -> mask -> BLAS over ``d2`` -> ``|U|^2``.
+
+    A subclass sets ``name``, ``Config`` (deriving from
+    :class:`~optoenc.encoders.base.EncoderConfig`, which brings ``d2``) and
+    the flags, and implements one of:
+
+    * :meth:`mask`: the amplitude (real, in ``[0, 1]``) or complex
+      transmittance on the field grid;
+    * :meth:`phase`: the phase delay, radians; the transmittance is then
+      ``aperture() * exp(1j * phase())`` (override :meth:`aperture` for an
+      opening other than the whole window).
+
+    Everything else is done here: the odd-oversampled field grid centred on
+    the optical axis (:attr:`field_grid`, :attr:`field_spacing`,
+    :meth:`field_coordinates`), the padding knob, the point source at ``d1``,
+    propagation over ``d2`` at the R, G, B wavelengths (:meth:`propagated_psf`),
+    the pixel integration and, through :meth:`mask`, the mask pictures.
+    """
+
+    # ----------------------------------------------------------------- what a subclass implements
+    def mask(self) -> torch.Tensor:
+        """The transmittance on the field grid: what is propagated, and what the mask pictures show.
+
+        Returns:
+            ``(H, W)`` (the same at every wavelength) or ``(3, H, W)`` (at the
+            R, G, B wavelengths of :data:`optoenc.devices.WAVELENGTHS_RGB`),
+            ``(H, W) = self.field_grid``, sample ``(i, j)`` at
+            :meth:`field_coordinates` ``(y[i], x[j])``: a real amplitude in
+            ``[0, 1]``, or complex. Default: ``aperture() * exp(1j * phase())``.
+        """
+        phi = self.phase()
+        return self.aperture().to(phi.dtype) * torch.exp(1j * phi)
+
+    def phase(self) -> torch.Tensor:
+        """Phase delay of a phase mask on the field grid, radians: ``(H, W)`` or ``(3, H, W)`` (R, G, B)."""
+        raise NotImplementedError(f"{type(self).__name__} must implement mask() (an amplitude) or phase()")
+
+    def aperture(self) -> torch.Tensor:
+        """Amplitude of the opening under :meth:`phase`, ``(H, W)`` on the field grid; default fully open."""
+        y, x = self.field_coordinates()
+        return torch.ones(len(y), len(x), dtype=y.dtype, device=y.device)
+
+    def compute_psf(self) -> torch.Tensor:
+        """The propagated PSF of :meth:`mask` at distance ``self.d2`` (see :meth:`propagated_psf`)."""
+        return self.propagated_psf(self.mask(), self.d2)
+
+    # ----------------------------------------------------------------- the field grid
+    def field_coordinates(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(y, x)``: positions of the field samples from the optical axis, metres (1-D, ``self.optics_dtype``).
+
+        ``y[i] = (i - H // 2) * dy`` for ``(H, W) = self.field_grid`` and
+        ``(dy, dx) = self.field_spacing``, on the device of the encoder's
+        parameters and buffers (CPU if it has none).
+        """
+        first = next(itertools.chain(self.parameters(), self.buffers()), None)
+        device = first.device if first is not None else None
+        return tuple(
+            (torch.arange(n, dtype=self.optics_dtype, device=device) - n // 2) * d
+            for n, d in zip(self.field_grid, self.field_spacing)
+        )
 
     @property
     def oversample(self) -> int:
