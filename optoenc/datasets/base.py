@@ -40,7 +40,12 @@ class Splits:
     num_classes: int
     #: Digest of the source data (e.g. its files' checksums), so caches need
     #: not hash the tensors; "" when unknown (callers then hash the tensors).
+    #: Together with the dataset's ``Config`` it must identify the splits'
+    #: content: change it whenever the source data changes.
     digest: str = ""
+    #: Optional name of each class (``class_names[label]``), for pictures and
+    #: listings; empty: the labels' numbers are shown.
+    class_names: tuple[str, ...] = ()
 
     def content_digest(self) -> str:
         """The dataset's digest for caches: :attr:`digest` if the dataset gives one, else SHA-256 of the splits.

@@ -172,6 +172,11 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
             (p._version, p.data_ptr()) for p in self.parameters()
         ) + tuple((b._version, b.data_ptr()) for b in self.buffers())
 
+    def invalidate_psf(self) -> None:
+        """Forget the cached PSF and the operator built from it: the next :meth:`psf` recomputes them."""
+        self._psf_cache = None
+        self._op_cache.pop("op", None)
+
     def psf(self) -> torch.Tensor:
         """Normalised intensity PSF as the sensor sees it: ``(channels, H, W)``.
 

@@ -43,6 +43,17 @@ class MaskEncoder(OpticalEncoder):
     the pixel integration and, through :meth:`mask`, the mask pictures.
     """
 
+    #: Wavelengths propagated per FFT batch (None: all at once); set to 1 to bound memory on very fine grids.
+    wavelength_chunk: int | None = None
+    #: Set by :meth:`set_monochromatic`: one wavelength (metres) propagated with the G channel's mask for every
+    #: colour channel; None: the R, G, B wavelengths of :data:`optoenc.devices.WAVELENGTHS_RGB`.
+    monochromatic: float | None = None
+
+    def set_monochromatic(self, wavelength: float | None) -> None:
+        """Propagate one ``wavelength`` for every colour channel from now on (None: back to R, G, B)."""
+        self.monochromatic = None if wavelength is None else float(wavelength)
+        self.invalidate_psf()
+
     # ----------------------------------------------------------------- what a subclass implements
     def mask(self) -> torch.Tensor:
         """The transmittance on the field grid: what is propagated, and what the mask pictures show.
@@ -132,15 +143,22 @@ class MaskEncoder(OpticalEncoder):
                 real or complex.
             d2: mask-to-sensor distance, metres (a tensor may require grad).
         """
-        psf = intensity_psf(
-            mask,
-            devices.WAVELENGTHS_RGB,
-            self.field_spacing,
-            self.scene_config.distance,
-            d2,
-            padding=self.fidelity_padding(),
-            normalize="power",
-        )
+        wl = devices.WAVELENGTHS_RGB if self.monochromatic is None else (self.monochromatic,)
+        if self.monochromatic is not None and mask.dim() == 3 and mask.shape[0] == 3:
+            mask = mask[1:2]  # the G channel's mask
+        step = self.wavelength_chunk or len(wl)
+        psf = torch.cat([
+            intensity_psf(
+                mask[i : i + step] if mask.dim() == 3 and mask.shape[0] > 1 else mask,
+                wl[i : i + step],
+                self.field_spacing,
+                self.scene_config.distance,
+                d2,
+                padding=self.fidelity_padding(),
+                normalize="power",
+            ).reshape(-1, *mask.shape[-2:])
+            for i in range(0, len(wl), step)
+        ])  # fmt: skip
         if self.oversample > 1:  # intensity integrated over each grid pixel
             s = self.oversample
             H, W = self.geometry.grid
