@@ -4,14 +4,18 @@ from __future__ import annotations
 
 import csv
 import io
+import math
+import os
+import sys
 import time
 from pathlib import Path
 
 import lightning as L
+from lightning.pytorch.callbacks import ModelCheckpoint
 
 from .rundir import atomic_write_text
 
-__all__ = ["EpochMetrics", "EpochTest", "METRIC_COLUMNS"]
+__all__ = ["EpochMetrics", "EpochTest", "METRIC_COLUMNS", "RunCheckpoint", "FiniteLoss", "EpochLines"]
 
 METRIC_COLUMNS = ("epoch", "train_loss", "train_acc", "val_loss", "val_acc", "test_acc", "time_s")
 
@@ -79,13 +83,108 @@ class EpochTest(L.Callback):
         correct = total = 0
         try:
             with torch.no_grad():
-                for i, (x, y) in enumerate(self.loader):
-                    x, y = x.to(pl_module.device), y.to(pl_module.device)
-                    pl_module.on_test_batch_start((x, y), i)
-                    logits = pl_module(x, augment=pl_module.augment_eval)
+                for i, batch in enumerate(self.loader):
+                    x, y, *rest = (t.to(pl_module.device) for t in batch)
+                    pl_module.on_test_batch_start(batch, i)
+                    logits = pl_module(x, augment=pl_module.augment_eval, draws=rest[0] if rest else None)
                     correct += int((logits.argmax(1) == y).sum())
                     total += len(y)
         finally:
             pl_module.train(was_training)
             torch.set_rng_state(state)
         trainer.callback_metrics["test_acc_epoch"] = torch.tensor(correct / max(total, 1))
+
+
+class RunCheckpoint(ModelCheckpoint):
+    """``ModelCheckpoint`` that keeps its best score when the run directory is moved or copied.
+
+    Lightning drops ``best_model_score`` when the checkpoint folder differs
+    from the one stored in the checkpoint, so a resumed copy would replace
+    ``best.ckpt`` by its next (possibly worse) epoch. Here the stored paths are
+    re-rooted in the current folder instead. The state key is Lightning's own,
+    so checkpoints of either class restore into the other.
+    """
+
+    @property
+    def state_key(self) -> str:
+        return super().state_key.replace(type(self).__qualname__, ModelCheckpoint.__qualname__, 1)
+
+    def load_state_dict(self, state_dict: dict) -> None:
+        old = state_dict.get("dirpath")
+        if old and self.dirpath and old != self.dirpath:
+            def move(p):
+                if not p:
+                    return p
+                rel = os.path.relpath(p, old) if str(p).startswith(str(old)) else os.path.basename(p)
+                return os.path.join(self.dirpath, rel)
+
+            state_dict = dict(state_dict, dirpath=self.dirpath)
+            for k in ("best_model_path", "kth_best_model_path", "last_model_path"):
+                if k in state_dict:
+                    state_dict[k] = move(state_dict[k])
+            if "best_k_models" in state_dict:
+                state_dict["best_k_models"] = {move(p): v for p, v in state_dict["best_k_models"].items()}
+        super().load_state_dict(state_dict)
+
+
+class FiniteLoss(L.Callback):
+    """Stops a run whose training loss becomes NaN or infinite, naming the likely setting.
+
+    Raises:
+        TrainingDiverged: at the first non-finite batch loss (the CLI exits with code 1).
+    """
+
+    def __init__(self, run):
+        self.run = run
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
+        loss = outputs.get("loss") if isinstance(outputs, dict) else outputs
+        if loss is None or math.isfinite(float(loss)):
+            return
+        from .errors import TrainingDiverged
+
+        raise TrainingDiverged(
+            f"training loss became {float(loss)} at epoch {trainer.current_epoch}, batch {batch_idx}: "
+            f"{self._likely(trainer, pl_module, batch, batch_idx)}"
+        )
+
+    def _likely(self, trainer, pl_module, batch, batch_idx) -> str:
+        import torch
+
+        t = self.run.trainer
+        with torch.no_grad():
+            params_ok = all(bool(torch.isfinite(p).all()) for p in pl_module.parameters())
+            emb = pl_module.clean_embedding(batch[0], augment=False)
+            emb_ok = bool(torch.isfinite(emb).all())
+            noisy_ok = bool(torch.isfinite(pl_module.encoder.add_sensor_noise(emb)).all())
+        if not emb_ok:
+            return ("the noise-free sensor embeddings are not finite: check the encoder, scene and fidelity "
+                    f"settings (encoder.d2 = {getattr(self.run.encoder, 'd2', '?')}, "
+                    f"scene.object_height = {self.run.scene.object_height})")
+        if not noisy_ok:
+            s = self.run.sensor
+            return (f"the sensor noise is not finite: check sensor.noise = {s.noise!r}, sensor.snr_db = {s.snr_db}, "
+                    f"sensor.photons = {s.photons}, sensor.read_noise = {s.read_noise}")
+        if not params_ok and pl_module.encoder.learnable:
+            return f"the parameters diverged: likely trainer.lr = {t.lr} or trainer.encoder_lr = {t.encoder_lr} is too high"
+        return f"the optimisation diverged: likely trainer.lr = {t.lr} is too high"
+
+
+class EpochLines(L.Callback):
+    """Progress for logs (stdout not a terminal): one line per epoch instead of a bar of carriage returns."""
+
+    def __init__(self, stream=None):
+        self.stream = stream
+        self._start = time.time()
+
+    def on_train_epoch_start(self, trainer, pl_module) -> None:
+        self._start = time.time()
+
+    def on_train_epoch_end(self, trainer, pl_module) -> None:
+        m = trainer.callback_metrics
+        parts = [f"epoch {trainer.current_epoch + 1}/{trainer.max_epochs}"]
+        for k, name in (("train_loss_epoch", "train_loss"), ("train_acc", "train_acc"), ("val_loss", "val_loss"), ("val_acc", "val_acc")):
+            if k in m:
+                parts.append(f"{name} {float(m[k]):.4f}")
+        parts.append(f"({time.time() - self._start:.1f} s)")
+        print("  ".join(parts), file=self.stream or sys.stdout, flush=True)

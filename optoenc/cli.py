@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Sequence
 
 from . import __version__
-from .errors import ConfigError, OptoencError
+from .errors import ConfigError, Interrupted, OptoencError
 
 __all__ = ["main"]
 
@@ -146,7 +146,7 @@ def _quiet_lightning() -> None:
 
 
 def cmd_fit(args, extra) -> int:
-    from .rundir import RUN_FILES, new_run_dir
+    from .rundir import RUN_FILES, new_run_dir, remove_if_empty
     from .training import fit
 
     if args.resume:
@@ -159,12 +159,20 @@ def cmd_fit(args, extra) -> int:
     if args.print_config:
         print(run.to_yaml(), end="")
         return 0
-    if not args.resume:
+    if args.resume:
+        from .config import compose
+        from .resume import check_resume
+
+        check_resume(run_dir, compose([_load_yaml(str(cfg))]).tree, run.tree)
+    else:
         stem = f"{run.names['encoder']}-{run.names['decoder']}"
         run_dir = new_run_dir(run.output.root, run.output.name, stem)
     _quiet_lightning()
     print(f"run directory: {run_dir}", file=sys.stderr)
-    summary = fit(run, run_dir, resume=bool(args.resume))
+    try:
+        summary = fit(run, run_dir, resume=bool(args.resume))
+    finally:
+        remove_if_empty(run_dir)  # a start that failed leaves no stub directory behind
     line = f"val_acc {summary['val_acc']:.4f}  test_acc {summary['test_acc']:.4f}"
     if "verify" in summary:
         line += f"  test_acc@{summary['verify']['preset']} {summary['verify']['test_acc']:.4f}"
@@ -187,10 +195,15 @@ def _run_config(run_dir: str, extra):
     from .config import compose
     from .rundir import RUN_FILES
 
+    from .resume import check_evaluate
+
     cfg = Path(run_dir) / RUN_FILES["config"]
     if not cfg.is_file():
         raise ConfigError("--run", run_dir, f"not a run directory (no {RUN_FILES['config']})")
-    return compose([_load_yaml(str(cfg))], _split_overrides(extra))
+    stored = _load_yaml(str(cfg))
+    run = compose([stored], _split_overrides(extra))
+    check_evaluate(Path(run_dir), compose([stored]).tree, run.tree)
+    return run
 
 
 def cmd_export(args, extra) -> int:
@@ -428,12 +441,18 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 0
         if extra and args.command not in ("fit", "validate", "test", "psf", "simulate", "export"):
             parser.error(f"unrecognized arguments: {' '.join(extra)}")
-        return COMMANDS[args.command](args, extra)
+        from .resume import raise_on_signals
+
+        with raise_on_signals():
+            return COMMANDS[args.command](args, extra)
     except OptoencError as err:
         print(f"optoenc: error: {err}", file=sys.stderr)
-        return 2
+        return err.exit_code
+    except Interrupted as err:
+        print(f"optoenc: interrupted by {err.name}{' ' + err.where if err.where else ''}", file=sys.stderr)
+        return err.exit_code
     except KeyboardInterrupt:
-        print("optoenc: interrupted; resume with `optoenc fit --resume RUN_DIR`", file=sys.stderr)
+        print("optoenc: interrupted by SIGINT", file=sys.stderr)
         return 130
 
 

@@ -47,12 +47,12 @@ class TrainerConfig(Settings):
 
     max_epochs: int = setting(50, "training epochs", ge=1)
     batch_size: int = setting(200, "examples per optimiser step", ge=1)
-    lr: float = setting(1e-3, "Adam learning rate (encoder and decoder)", gt=0)
+    lr: float = setting(1e-3, "Adam learning rate (encoder and decoder); above 10 Adam's steps overflow float32", gt=0, le=10)
     encoder_lr: Optional[float] = setting(
         1e-2,
         "Adam learning rate of the encoder's parameters (null: lr). Higher than the decoder's because learned "
         "masks are sigmoid logits: at 1e-2 a sub-pixel can cross its range within an epoch, at 1e-3 it barely moves",
-        gt=0,
+        gt=0, le=10,
     )
     precompute: bool = setting(True, "encode the dataset once for fixed, non-augmented encoders (noise still drawn per batch)")
     cache: bool = setting(True, "cache precomputed embeddings on disk (keyed by everything that affects them)")
@@ -71,6 +71,11 @@ class TrainerConfig(Settings):
     )
     limit_val_batches: float = setting(1.0, "as limit_train_batches, for validation", gt=0)
     limit_test_batches: float = setting(1.0, "as limit_train_batches, for the test", gt=0)
+    augment_draw: str = setting(
+        "epoch", "augmentations: 'epoch' redraws every transform every epoch; 'once' draws one transform per "
+        "example, kept for all epochs, for train, validation and test (the paper's robustness protocol)",
+        choices=("epoch", "once"),
+    )
     test_every_epoch: bool = setting(
         False, "also measure test accuracy after every epoch (metrics.csv column test_acc; the paper's "
         "'best test over epochs' figure, reported only beside the validation-selected one)"

@@ -7,11 +7,14 @@ code 2 (no traceback).
 
 from __future__ import annotations
 
-__all__ = ["OptoencError", "ConfigError", "DataError", "PluginError", "PhysicsError"]
+__all__ = ["OptoencError", "ConfigError", "DataError", "PluginError", "PhysicsError", "TrainingDiverged", "Interrupted"]
 
 
 class OptoencError(Exception):
     """Base class of the errors a user can cause (bad setting, file or name)."""
+
+    #: Exit status of the CLI for this error (2: bad input, found before anything ran).
+    exit_code = 2
 
 
 class ConfigError(OptoencError, ValueError):
@@ -43,3 +46,31 @@ class PluginError(OptoencError, LookupError):
 
 class PhysicsError(OptoencError, ValueError):
     """A physical configuration that cannot be simulated (e.g. a zero-energy PSF)."""
+
+
+class TrainingDiverged(OptoencError, ArithmeticError):
+    """The training loss became NaN or infinite; the message names the likely setting (CLI exit code 1)."""
+
+    exit_code = 1
+
+
+class Interrupted(BaseException):
+    """A run stopped by SIGINT or SIGTERM (a BaseException, like KeyboardInterrupt).
+
+    Attributes:
+        signum: the signal number; the CLI exits with ``128 + signum`` (130, 143).
+        where: filled in by :func:`optoenc.training.fit`: the run directory,
+            the epoch reached and the resume command.
+    """
+
+    def __init__(self, signum: int):
+        import signal
+
+        self.signum = int(signum)
+        self.name = signal.Signals(self.signum).name
+        self.where: str = ""
+        super().__init__(self.name)
+
+    @property
+    def exit_code(self) -> int:
+        return 128 + self.signum

@@ -37,7 +37,7 @@ class SensorConfig(Settings):
     embedding: tuple[int, int] = setting(devices.EMBEDDINGS[0], "embedding size (rows, columns) after pixel integration", ge=1)
     color: str = setting("gray", "sensor colour: 'gray' (one channel) or 'rgb'", choices=("gray", "rgb"))
     noise: str = setting("gaussian", "noise model", choices=("gaussian", "poisson", "none"))
-    snr_db: Optional[float] = setting(devices.SNR_DB, "SNR of the gaussian noise (null: no noise)", unit="dB")
+    snr_db: Optional[float] = setting(devices.SNR_DB, "SNR of the gaussian noise (null: no noise)", unit="dB", ge=-100, le=300)
     photons: float = setting(1e4, "photons at the brightest pixel (poisson model)", gt=0)
     read_noise: float = setting(0.0, "read noise (poisson model)", unit="e-", ge=0)
     adc_bits: Optional[int] = setting(None, "ADC bit depth (null: no quantisation)", ge=1, le=32)

@@ -31,11 +31,21 @@ class EpochSampler(Sampler[int]):
         return self.n
 
 
-def make_loader(x: torch.Tensor, y: torch.Tensor, batch_size: int, shuffle: bool, seed: int = 0) -> DataLoader:
-    """A loader over in-memory tensors (no worker processes: the data is already in RAM)."""
-    ds = TensorDataset(x, y)
+def make_loader(
+    x: torch.Tensor, y: torch.Tensor, batch_size: int, shuffle: bool, seed: int = 0, extra: tuple = ()
+) -> DataLoader:
+    """A loader over in-memory tensors (no worker processes: the data is already in RAM).
+
+    ``extra`` tensors (e.g. stored augmentation draws) ride along: batches are ``(x, y, *extra)``.
+
+    A shuffled (training) loader whose last batch would hold a single example
+    drops it: BatchNorm cannot normalise one example (``train_size = 201``
+    with batches of 200); which example is dropped changes every epoch.
+    """
+    ds = TensorDataset(x, y, *extra)
     sampler = EpochSampler(len(ds), seed) if shuffle else None
-    return DataLoader(ds, batch_size=batch_size, sampler=sampler, shuffle=False, num_workers=0)
+    drop_last = shuffle and len(ds) > batch_size and len(ds) % batch_size == 1
+    return DataLoader(ds, batch_size=batch_size, sampler=sampler, shuffle=False, num_workers=0, drop_last=drop_last)
 
 
 @torch.no_grad()

@@ -20,6 +20,7 @@ Example:
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import typing
 from typing import Any, Iterable
@@ -77,21 +78,63 @@ def _allowed_text(meta: dict) -> str:
     return "must be " + " and ".join(parts) if parts else ""
 
 
-def _check_scalar(name: str, value: Any, meta: dict) -> None:
+def _scalar_type(tp: Any) -> tuple[Any, int | None, bool]:
+    """``(element type, fixed length or None, is a sequence)`` of a field annotation (``Optional`` removed)."""
+    origin = typing.get_origin(tp)
+    if origin is typing.Union or type(tp).__name__ == "UnionType":
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        return _scalar_type(args[0]) if len(args) == 1 else (None, None, False)
+    if origin in (tuple, list):
+        args = typing.get_args(tp)
+        if not args:
+            return None, None, True
+        if origin is tuple and (len(args) < 2 or args[1] is not Ellipsis):
+            return (args[0] if len(set(args)) == 1 else None), len(args), True
+        return args[0], None, True
+    return tp, None, False
+
+
+@functools.lru_cache(maxsize=None)
+def _field_types(cls: type) -> dict[str, tuple[Any, int | None, bool]]:
+    try:
+        hints = typing.get_type_hints(cls)
+    except Exception:  # a plugin annotation that cannot be resolved: no type checks
+        return {}
+    return {name: _scalar_type(tp) for name, tp in hints.items()}
+
+
+_TYPE_WORDS = {float: "a number", int: "an integer", bool: "true or false", str: "a string"}
+
+
+def _check_type(name: str, value: Any, expected: Any) -> None:
+    if expected is float:
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+    elif expected is int:
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif expected in (bool, str):
+        ok = isinstance(value, expected)
+    else:
+        return
+    if not ok:
+        raise ConfigError(name, value, f"must be {_TYPE_WORDS[expected]}, not {type(value).__name__}")
+
+
+def _check_scalar(name: str, value: Any, meta: dict, expected: Any = None) -> None:
     if meta.get("choices") is not None:
         if value not in meta["choices"]:
             raise ConfigError(name, value, _allowed_text(meta))
         return
+    _check_type(name, value, expected)
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return
+    if isinstance(value, float) and not math.isfinite(value):
+        # inf satisfies "> 0": non-finite numbers are never a physical setting
+        allowed = _allowed_text(meta).replace("must be ", "", 1)
+        what = "NaN" if math.isnan(value) else "infinite"
+        raise ConfigError(name, value, f"must be a finite number{' ' + allowed if allowed else ''}, not {what}")
     bounds = [meta.get(k) for k in ("gt", "ge", "lt", "le")]
-    if all(b is None for b in bounds):
-        if isinstance(value, float) and math.isnan(value):
-            raise ConfigError(name, value, "must be a number, not NaN")
-        return
-    ok = not (isinstance(value, float) and math.isnan(value))
     gt, ge, lt, le = bounds
-    ok = ok and (gt is None or value > gt) and (ge is None or value >= ge)
+    ok = (gt is None or value > gt) and (ge is None or value >= ge)
     ok = ok and (lt is None or value < lt) and (le is None or value <= le)
     if not ok:
         raise ConfigError(name, value, _allowed_text(meta))
@@ -103,21 +146,29 @@ def validate(config: Any) -> None:
     Raises:
         ConfigError: naming the field, the value and what is allowed.
     """
+    types = _field_types(type(config))
     for f in dataclasses.fields(config):
         value = getattr(config, f.name)
         if value is None:
             continue
+        expected, length, sequence = types.get(f.name, (None, None, False))
         if isinstance(value, (tuple, list)):
+            if expected in _TYPE_WORDS and not sequence:
+                raise ConfigError(f.name, list(value), f"must be {_TYPE_WORDS[expected]}, not a list")
+            if length is not None and len(value) != length:
+                raise ConfigError(f.name, list(value), f"must have {length} values, not {len(value)}")
             for v in value:
                 if v is not None:
-                    _check_scalar(f.name, v, f.metadata)
+                    _check_scalar(f.name, v, f.metadata, expected)
+        elif sequence:
+            raise ConfigError(f.name, value, f"must be a list of {length or 'some'} values")
         elif dataclasses.is_dataclass(value):
             try:
                 validate(value)
             except ConfigError as err:
                 raise err.with_prefix(f.name) from None
         else:
-            _check_scalar(f.name, value, f.metadata)
+            _check_scalar(f.name, value, f.metadata, expected)
 
 
 @dataclasses.dataclass

@@ -9,6 +9,7 @@ Used by the CLI (``optoenc fit | validate | test``) and usable from Python::
 from __future__ import annotations
 
 import logging
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,6 +24,8 @@ from .geometry import FidelityConfig
 from .loaders import encode, make_loader
 from .module import EncoderClassifier
 from .plugins import get_registry
+from .errors import ConfigError, DataError, Interrupted
+from .resume import clear_interrupted, mark_interrupted, raise_on_signals, read_checkpoint
 from .rundir import RUN_FILES, atomic_write_text, write_json
 from .settings import to_dict
 
@@ -66,10 +69,31 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
     decoder = get_registry("decoder").get(run.names["decoder"])(
         run.decoder, in_shape=encoder.output_shape, num_classes=splits.num_classes, learnable_encoder=encoder.learnable
     )
-    precomputed = run.trainer.precompute and not encoder.learnable and not augs
+    once = bool(augs) and run.trainer.augment_draw == "once"
+    precomputed = run.trainer.precompute and not encoder.learnable and (not augs or once)
     bs, ebs = run.trainer.batch_size, run.trainer.eval_batch_size
     data = {"train": splits.train, "val": splits.val, "test": splits.test}
-    if precomputed:
+    canvas = _canvas(run, encoder, splits.train[0].shape[-2:]) if augs else None
+    if once:
+        from . import augment_once
+
+        draws = {k: augment_once.draws(augs, len(y), run.seed, k) for k, (_x, y) in data.items()}
+        if precomputed:
+            key = cache.embedding_key(
+                encoder, run.dataset, splits.content_digest() + augment_once.token(augs, canvas, draws),
+                scenes=splits.train[0],
+            )
+            emb, _ = cache.cached(
+                key,
+                lambda: {k: augment_once.encode_transformed(encoder, augs, canvas, x, draws[k], ebs)
+                         for k, (x, _y) in data.items()},
+                root=run.trainer.cache_dir,
+                enabled=run.trainer.cache,
+            )
+            data = {k: (emb[k], y) for k, (_x, y) in data.items()}
+        else:
+            data = {k: (x, y, draws[k]) for k, (x, y) in data.items()}
+    elif precomputed:
         key = cache.embedding_key(encoder, run.dataset, splits.content_digest(), scenes=splits.train[0])
         emb, _ = cache.cached(
             key,
@@ -78,7 +102,6 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
             enabled=run.trainer.cache,
         )
         data = {k: (emb[k], y) for k, (_x, y) in data.items()}
-    canvas = _canvas(run, encoder, splits.train[0].shape[-2:]) if augs else None
     module = EncoderClassifier(
         encoder,
         decoder,
@@ -95,9 +118,9 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
             emb = sample if precomputed else encode(encoder, sample, ebs)
         decoder.set_statistics(emb.mean().item(), emb.std().item())
     loaders = {
-        "train": make_loader(*data["train"], bs, shuffle=True, seed=run.seed),
-        "val": make_loader(*data["val"], ebs, shuffle=False),
-        "test": make_loader(*data["test"], ebs, shuffle=False),
+        "train": make_loader(*data["train"][:2], bs, shuffle=True, seed=run.seed, extra=data["train"][2:]),
+        "val": make_loader(*data["val"][:2], ebs, shuffle=False, extra=data["val"][2:]),
+        "test": make_loader(*data["test"][:2], ebs, shuffle=False, extra=data["test"][2:]),
     }
     return Parts(module, splits, loaders, precomputed)
 
@@ -107,7 +130,7 @@ def _encode(encoder, images, batch_size, progress, split):
         return encode(encoder, images, batch_size)
     from tqdm.auto import tqdm
 
-    with tqdm(total=len(images), desc=f"encoding {split}", unit="img", leave=False) as bar:
+    with tqdm(total=len(images), desc=f"encoding {split}", unit="img", leave=False, disable=None) as bar:  # no bar in logs
         return encode(encoder, images, batch_size, progress=bar.update)
 
 
@@ -117,13 +140,10 @@ def checkpoint_path(run_dir: Path, which: str = "last") -> Path:
 
 
 def _trainer(run: RunConfig, run_dir: Path, logger: bool = True, extra_callbacks=(), test_loader=None):
-    import lightning as L
-    from lightning.pytorch.callbacks import ModelCheckpoint
-
-    from .callbacks import EpochMetrics
+    from .callbacks import EpochLines, EpochMetrics, FiniteLoss, RunCheckpoint
 
     callbacks = [
-        ModelCheckpoint(
+        RunCheckpoint(  # keeps its best score when the run directory is moved or copied
             dirpath=run_dir / RUN_FILES["checkpoints"],
             filename="best",
             monitor="val_acc",
@@ -141,13 +161,21 @@ def _trainer(run: RunConfig, run_dir: Path, logger: bool = True, extra_callbacks
 
             callbacks.append(EpochTest(test_loader))
         callbacks.append(EpochMetrics(run_dir / RUN_FILES["metrics"]))
-    return L.Trainer(
+    callbacks.append(FiniteLoss(run))
+    bar = run.trainer.progress and sys.stdout.isatty()
+    if run.trainer.progress and not bar:  # a log file: one line per epoch, not a bar of carriage returns
+        callbacks.append(EpochLines())
+    return _lightning_trainer(
+        run,
+        limit_train_batches=run.trainer.batch_limit("train"),
+        limit_val_batches=run.trainer.batch_limit("val"),
+        limit_test_batches=run.trainer.batch_limit("test"),
         max_epochs=run.trainer.max_epochs,
         accelerator=run.trainer.accelerator,
         devices=1,
         logger=False,
         callbacks=callbacks,
-        enable_progress_bar=run.trainer.progress,
+        enable_progress_bar=bar,
         enable_model_summary=False,
         num_sanity_val_steps=0,
         default_root_dir=run_dir,
@@ -181,18 +209,23 @@ def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> di
     """
     run_dir = Path(run_dir)
     start = time.time()
-    atomic_write_text(run_dir / RUN_FILES["config"], run.to_yaml())
+    ckpt = checkpoint_path(run_dir, "last")
+    # Nothing is written until the run can start: settings, data, checkpoint and trainer all check out first.
+    restored = read_checkpoint(ckpt, "last checkpoint, needed to resume") if resume else None
     parts = build(run, progress=run.trainer.progress)
+    if restored is not None:
+        _check_restore(parts.module, restored, ckpt)
+    trainer = _trainer(run, run_dir, extra_callbacks=callbacks, test_loader=parts.loaders["test"])
+    run_dir.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(run_dir / RUN_FILES["config"], run.to_yaml())
     if not resume and parts.module.encoder.learnable:  # a fixed encoder's initial PSF is its final one
         _pictures(parts, run, run_dir, "initial")
-    trainer = _trainer(run, run_dir, extra_callbacks=callbacks, test_loader=parts.loaders["test"])
-    ckpt = checkpoint_path(run_dir, "last")
-    trainer.fit(
-        parts.module,
-        parts.loaders["train"],
-        parts.loaders["val"],
-        ckpt_path=str(ckpt) if resume and ckpt.exists() else None,
-    )
+    try:
+        with raise_on_signals():
+            trainer.fit(parts.module, parts.loaders["train"], parts.loaders["val"], ckpt_path=str(ckpt) if resume else None)
+    except Interrupted as err:
+        err.where = _interrupted(run, run_dir, trainer, err)
+        raise
     best = checkpoint_path(run_dir, "best")
     best_val = float(trainer.checkpoint_callback.best_model_score or float("nan"))
     test = trainer.test(parts.module, parts.loaders["test"], ckpt_path=str(best) if best.exists() else None, verbose=False)
@@ -218,7 +251,44 @@ def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> di
     if run.trainer.verify_preset and run.trainer.verify_preset != run.fidelity.preset:
         summary["verify"] = verify(parts, run, run.trainer.verify_preset)
     write_json(run_dir / RUN_FILES["summary"], summary)
+    clear_interrupted(run_dir)
     return summary
+
+
+def _check_restore(module, ckpt: dict, path: Path) -> None:
+    """The checkpoint's weights must fit this run's model exactly (else a one-line DataError naming the file)."""
+    try:
+        module.load_state_dict(ckpt["state_dict"], strict=True)
+    except RuntimeError as err:
+        raise DataError(f"{path}: does not match this run's model ({str(err).splitlines()[0]} ...)") from None
+
+
+def _interrupted(run: RunConfig, run_dir: Path, trainer, err) -> str:
+    """Mark the run directory as interrupted; the sentence saying where the run is and how to resume it."""
+    import shlex
+
+    from .callbacks import read_metrics
+
+    done = len(read_metrics(run_dir / RUN_FILES["metrics"]))
+    command = f"optoenc fit --resume {shlex.quote(str(run_dir))}"
+    mark_interrupted(run_dir, err.name, trainer.current_epoch, command)
+    where = f"during epoch {trainer.current_epoch + 1} of {run.trainer.max_epochs} in {run_dir}"
+    if done and checkpoint_path(run_dir, "last").exists():
+        return f"{where}; {done} epoch(s) complete in {checkpoint_path(run_dir, 'last')}; resume with: {command}"
+    return f"{where}; no epoch complete yet, nothing to resume: start the run again"
+
+
+def _lightning_trainer(run: RunConfig, **kwargs):
+    """``lightning.Trainer(**kwargs)``; Lightning's refusals (no GPU, bad devices) become a ConfigError naming the setting."""
+    import lightning as L
+    from lightning.fabric.utilities.exceptions import MisconfigurationException
+
+    try:
+        return L.Trainer(**kwargs)
+    except (MisconfigurationException, ValueError, RuntimeError) as err:
+        msg = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        key = next((k for k in ("devices", "strategy", "num_nodes", "precision") if k in msg.lower()), "accelerator")
+        raise ConfigError(f"trainer.{key}", getattr(run.trainer, key, kwargs.get(key)), msg) from None
 
 
 def _best_test(run_dir: Path) -> float | None:
@@ -264,7 +334,7 @@ def verify(parts: Parts, run: RunConfig, preset: str) -> dict[str, Any]:
 def load_encoder(run: RunConfig, run_dir: Path, which: str = "best"):
     """The run's encoder with the trained parameters of checkpoint ``which``."""
     encoder = build_encoder(run)
-    ckpt = torch.load(checkpoint_path(run_dir, which), map_location="cpu", weights_only=False)
+    ckpt = read_checkpoint(checkpoint_path(run_dir, which), f"{which} checkpoint")
     state = {k[len("encoder.") :]: v for k, v in ckpt["state_dict"].items() if k.startswith("encoder.")}
     encoder.load_state_dict(state, strict=False)
     return encoder.eval()
@@ -272,9 +342,11 @@ def load_encoder(run: RunConfig, run_dir: Path, which: str = "best"):
 
 def evaluate(run: RunConfig, run_dir: Path, stage: str = "test", which: str = "best") -> dict[str, float]:
     """Validate or test a trained run from its checkpoint."""
-    parts = build(run, progress=run.trainer.progress)
-    trainer = _trainer(run, Path(run_dir), logger=False)
     ckpt = checkpoint_path(run_dir, which)
+    restored = read_checkpoint(ckpt, f"{which} checkpoint")
+    parts = build(run, progress=run.trainer.progress)
+    _check_restore(parts.module, restored, ckpt)
+    trainer = _trainer(run, Path(run_dir), logger=False)
     fn = trainer.test if stage == "test" else trainer.validate
     out = fn(parts.module, parts.loaders[stage if stage == "test" else "val"], ckpt_path=str(ckpt), verbose=False)
     return {k: float(v) for k, v in (out[0] if out else {}).items()}

@@ -9,6 +9,7 @@ from typing import Any, ClassVar, NamedTuple
 import torch
 
 from ..encoders.base import _coerce
+from ..errors import ConfigError, DataError
 from ..settings import Documented, Settings
 
 __all__ = ["DatasetConfig", "Dataset", "Split", "Splits"]
@@ -63,6 +64,31 @@ class Splits:
             h.update(images.detach().cpu().contiguous().numpy().tobytes())
             h.update(labels.detach().cpu().contiguous().numpy().tobytes())
         return h.hexdigest()
+
+    def __post_init__(self) -> None:
+        """Checked at load, before anything trains: shapes, label range and split sizes."""
+        for name in ("train", "val", "test"):
+            images, labels = getattr(self, name)
+            if len(images) != len(labels):
+                raise DataError(f"dataset {name} split: {len(images)} images but {len(labels)} labels")
+            if labels.dtype.is_floating_point or labels.dtype == torch.bool or labels.dim() != 1:
+                raise DataError(f"dataset {name} split: labels must be a 1-d integer tensor, not {labels.dtype} {tuple(labels.shape)}")
+            if len(labels) and (int(labels.min()) < 0 or int(labels.max()) >= self.num_classes):
+                bad = labels[(labels < 0) | (labels >= self.num_classes)]
+                raise DataError(
+                    f"dataset {name} split: label {int(bad[0])} is outside the {self.num_classes} classes "
+                    f"(0 to {self.num_classes - 1}); {len(bad)} such label(s)"
+                )
+            if images.is_floating_point() and len(images) and not bool(torch.isfinite(images).all()):
+                raise DataError(f"dataset {name} split: images hold NaN or infinite values")
+        if len(self.train.labels) < 2:
+            raise ConfigError("dataset.train_size", len(self.train.labels), "must be >= 2 (a training batch needs two examples)")
+        if len(self.val.labels) < 1:
+            raise ConfigError(
+                "dataset.val_size", len(self.val.labels), "must be >= 1: the best checkpoint is selected on the validation split"
+            )
+        if len(self.test.labels) < 1:
+            raise ConfigError("dataset.test_size", len(self.test.labels), "must be >= 1")
 
     def sizes(self) -> dict[str, int]:
         """Number of examples per split."""

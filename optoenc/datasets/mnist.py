@@ -53,9 +53,12 @@ class MNISTConfig(DatasetConfig):
     root: Optional[str] = setting(
         None, f"folder of the IDX .gz files (null: ${ROOT_ENV} if set, else the bundled copy)"
     )
-    val_size: int = setting(5000, "validation examples carved from the 60,000 training images", ge=0, lt=TRAIN_TOTAL)
+    val_size: int = setting(
+        5000, "validation examples carved from the 60,000 training images (the best checkpoint is selected on them)",
+        ge=1, lt=TRAIN_TOTAL,
+    )
     train_size: Optional[int] = setting(
-        None, "training examples (null: all those not in the validation split); smaller for quick runs", ge=1
+        None, "training examples (null: all those not in the validation split); smaller for quick runs", ge=2
     )
     test_size: Optional[int] = setting(None, "test examples, a fixed random subset (null: all 10,000)", ge=1, le=TEST_TOTAL)
     split_seed: int = setting(0, "seed of the fixed split permutation (independent of the training seed)")

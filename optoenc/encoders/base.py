@@ -18,7 +18,7 @@ from typing import Any, ClassVar, Mapping
 import torch
 from torch import nn
 
-from .. import imaging
+from .. import imaging, limits
 from ..errors import ConfigError
 from ..geometry import FidelityConfig, Geometry, SceneConfig, SensorConfig
 from ..settings import Documented, Settings, setting
@@ -93,8 +93,10 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         self.fidelity = _coerce(FidelityConfig, fidelity, "fidelity").bind(type(self).fidelity_presets)
         #: The resolved fidelity knobs (:class:`optoenc.geometry.Knobs`: preset, this encoder's overrides, explicit knobs).
         self.knobs = self.fidelity.resolved()
+        limits.check_simulation(self.knobs)  # before any array is made: a grid that cannot fit fails here
         self.geometry = Geometry.of(self.sensor, self.fidelity)
         self.optics_dtype = getattr(torch, self.knobs.dtype)
+        self._check_object_size()
         self._psf_cache: tuple[Any, torch.Tensor] | None = None
         self._op_cache: dict[Any, Any] = {}
 
@@ -145,6 +147,25 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         """Height on the grid, in grid pixels, of an object of ``height`` metres (default: the scene's)."""
         h = self.scene_config.object_height if height is None else height
         return h * self.magnification / self.geometry.spacing[0]
+
+    #: Largest ratio of the scene's image height to the simulated field of view: beyond it less than
+    #: 1/10 of the scene reaches the sensor and a classifier can only guess.
+    MAX_OVERFILL = 10.0
+
+    def _check_object_size(self, height: float | None = None) -> None:
+        """Refuse a geometry whose scene image is mostly off the sensor or smaller than one grid pixel."""
+        px = self.object_height_px(height)
+        H = self.geometry.grid[0]
+        if 1 <= px <= self.MAX_OVERFILL * H:
+            return
+        h = self.scene_config.object_height if height is None else height
+        size = f"the {h * 1e3:.3g} mm scene to {h * self.magnification * 1e3:.3g} mm on the {self.sensor.size[0] * 1e3:.3g} mm sensor"
+        why = "less than 1/10 of it reaches the sensor" if px > 1 else "smaller than one simulated pixel"
+        raise ConfigError(
+            "encoder.d2", self.d2,
+            f"images {size} (|M| = d2 / scene.distance = {self.magnification:.3g}): {why}; "
+            "check encoder.d2, scene.distance and scene.object_height",
+        )
 
     @property
     def subcells(self) -> int:
