@@ -212,6 +212,7 @@ def cmd_export(args, extra) -> int:
     from .rundir import atomic_write_bytes
     from .training import load_encoder
 
+    out = _out_file(args.out)
     run = _run_config(args.run, extra)
     enc = load_encoder(run, Path(args.run), args.which)
     mask = enc.mask()
@@ -222,7 +223,7 @@ def cmd_export(args, extra) -> int:
 
     buf = io.BytesIO()
     Image.fromarray(panel_image(enc), mode="RGB").save(buf, format="PNG")
-    print(atomic_write_bytes(args.out, buf.getvalue()))
+    print(atomic_write_bytes(out, buf.getvalue()))
     return 0
 
 
@@ -245,15 +246,33 @@ def cmd_psf(args, extra) -> int:
     from . import pictures
     from .config import build_encoder
 
+    out = _out_file(args.out)
     run = _compose(args, extra)
     enc = build_encoder(run)
-    out = Path(args.out)
     pictures.save_psf(out, pictures.spectral_psf(enc), enc.geometry.spacing, f"{enc.name} PSF")
+    print(out)
     mask = enc.mask()
     if mask is not None:
-        pictures.save_mask(out.with_name(out.stem + "_mask.png"), mask, f"{enc.name} mask")
-    print(out)
+        print(pictures.save_mask(out.with_name(out.stem + "_mask.png"), mask, f"{enc.name} mask"))
     return 0
+
+
+def _out_file(path: str) -> Path:
+    """``--out FILE``: refused up front if it names a folder or lies under a file."""
+    out = Path(path)
+    if out.is_dir():
+        raise ConfigError("--out", path, "is a folder; give a file name (e.g. psf.png)")
+    if any(p.exists() and not p.is_dir() for p in out.parents):
+        raise ConfigError("--out", path, "lies under a file, not a folder")
+    return out
+
+
+def _out_dir(path: str) -> Path:
+    """``--out DIR``: refused up front if it names a file or lies under one."""
+    out = Path(path)
+    if any(p.exists() and not p.is_dir() for p in (out, *out.parents)):
+        raise ConfigError("--out", path, "is (or lies under) a file; give a folder")
+    return out
 
 
 def cmd_simulate(args, extra) -> int:
@@ -263,10 +282,12 @@ def cmd_simulate(args, extra) -> int:
     from .config import build_encoder
     from .plugins import get_registry
 
+    if not 1 <= args.count <= 64:
+        raise ConfigError("--count", args.count, "must be >= 1 and <= 64 (digits drawn per picture)")
+    out = _out_dir(args.out)
     run = _compose(args, extra)
     splits = get_registry("dataset").get(run.names["dataset"])(run.dataset).load()
     x, y = splits.test[0][: args.count], splits.test[1][: args.count]
-    out = Path(args.out)
     for i, emb_shape in enumerate(devices.EMBEDDINGS):
         run.sensor = dataclasses.replace(run.sensor, embedding=emb_shape)
         enc = build_encoder(run)
@@ -448,6 +469,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OptoencError as err:
         print(f"optoenc: error: {err}", file=sys.stderr)
         return err.exit_code
+    except OSError as err:  # a file system refusal not caught earlier: one line, naming the file
+        print(f"optoenc: error: {err.filename or ''}: {err.strerror or err}", file=sys.stderr)
+        return 2
     except Interrupted as err:
         print(f"optoenc: interrupted by {err.name}{' ' + err.where if err.where else ''}", file=sys.stderr)
         return err.exit_code
