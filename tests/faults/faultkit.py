@@ -42,3 +42,20 @@ def one_line_error(proc: subprocess.CompletedProcess, code: int = 2) -> str:
     return last
 
 
+
+
+def main(*args) -> subprocess.CompletedProcess:
+    """``optoenc ARGS`` in this process (``optoenc.cli.main``): the same code path, without the start-up cost.
+
+    Used for the many variants of a case; each cause also runs the real
+    command in a subprocess (:func:`run`).
+    """
+    import contextlib
+    import io
+
+    from optoenc.cli import main as cli_main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = cli_main([str(a) for a in args])
+    return subprocess.CompletedProcess(["optoenc", *map(str, args)], code, out.getvalue(), err.getvalue())

@@ -1,0 +1,103 @@
+"""Cause 4: resume keeps its contract: same configuration, nothing written before the restore, checkpoints checked."""
+
+from __future__ import annotations
+
+import shutil
+
+import pytest
+import torch
+
+from optoenc.callbacks import RunCheckpoint, read_metrics
+
+from faultkit import main, one_line_error, run
+
+
+def _snapshot(run_dir):
+    return {p.relative_to(run_dir): p.read_bytes() for p in sorted(run_dir.rglob("*")) if p.is_file()}
+
+
+@pytest.mark.parametrize(
+    "change,keys",
+    [
+        (["--decoder.embedding_norm=none"], ["decoder.embedding_norm"]),
+        (["--sensor.embedding=[12,16]"], ["sensor.embedding"]),
+        (["--encoder.d2=0.005"], ["encoder.d2"]),
+        (["--seed=7"], ["seed"]),
+        (["--trainer.lr=0.01"], ["trainer.lr"]),  # used to be written to config.yaml and ignored by the optimiser
+        (["--encoder.d2=0.005", "--trainer.lr=0.01", "--trainer.max_epochs=2"], ["encoder.d2", "trainer.lr"]),
+    ],
+)
+def test_resume_with_changed_settings_is_refused_and_writes_nothing(copy_of_trained, change, keys):
+    before = _snapshot(copy_of_trained)
+    line = one_line_error((run if "--seed=7" in change else main)("fit", "--resume", copy_of_trained, *change))
+    for k in keys:
+        assert k in line
+    assert "max_epochs" in line  # says what may change
+    assert _snapshot(copy_of_trained) == before
+
+
+def test_resume_with_safe_changes_continues(copy_of_trained):
+    proc = main("fit", "--resume", copy_of_trained, "--trainer.max_epochs=2", "--output.examples=1", "--trainer.progress=false")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert [r["epoch"] for r in read_metrics(copy_of_trained / "metrics.csv")] == ["0", "1"]
+
+
+@pytest.mark.parametrize("damage", ["delete", "truncate", "garbage"])
+def test_missing_or_corrupt_last_checkpoint_is_one_line_naming_the_file(copy_of_trained, damage):
+    ckpt = copy_of_trained / "checkpoints" / "last.ckpt"
+    if damage == "delete":
+        ckpt.unlink()  # used to retrain silently from epoch 0
+    elif damage == "truncate":
+        ckpt.write_bytes(ckpt.read_bytes()[:3000])  # used to print PytorchStreamReader failed ...
+    else:
+        ckpt.write_bytes(b"not a checkpoint at all")
+    before = _snapshot(copy_of_trained)
+    line = one_line_error((run if damage == "truncate" else main)("fit", "--resume", copy_of_trained, "--trainer.max_epochs=2"))
+    assert str(ckpt) in line
+    assert _snapshot(copy_of_trained) == before
+
+
+def test_test_with_a_corrupt_best_checkpoint_names_it(copy_of_trained):
+    best = copy_of_trained / "checkpoints" / "best.ckpt"
+    best.write_bytes(best.read_bytes()[:2000])
+    line = one_line_error(main("test", "--run", copy_of_trained))
+    assert str(best) in line
+
+
+def test_test_with_a_different_decoder_setting_is_refused(trained):
+    line = one_line_error(run("test", "--run", trained, "--decoder.embedding_norm=none"))
+    assert "decoder.embedding_norm" in line
+    proc = main("test", "--run", trained, "--sensor.snr_db=30")  # evaluating under other noise is allowed
+    assert proc.returncode == 0 and "test_acc" in proc.stdout, proc.stderr[-2000:]
+
+
+def test_checkpoint_state_survives_a_moved_folder(tmp_path):
+    """Unit: Lightning's ModelCheckpoint drops best_model_score when the folder moved; RunCheckpoint re-roots it."""
+    a, b = tmp_path / "a" / "checkpoints", tmp_path / "b" / "checkpoints"
+    src = RunCheckpoint(dirpath=a, filename="best", monitor="val_acc", mode="max")
+    src.best_model_score, src.best_model_path = torch.tensor(0.9), str(a / "best.ckpt")
+    src.best_k_models = {str(a / "best.ckpt"): torch.tensor(0.9)}
+    dst = RunCheckpoint(dirpath=b, filename="best", monitor="val_acc", mode="max")
+    dst.load_state_dict(src.state_dict())
+    assert float(dst.best_model_score) == pytest.approx(0.9)
+    assert dst.best_model_path == str(b.resolve() / "best.ckpt") or dst.best_model_path == str(b / "best.ckpt")
+    assert list(dst.best_k_models) == [dst.best_model_path]
+    from lightning.pytorch.callbacks import ModelCheckpoint
+
+    assert dst.state_key == ModelCheckpoint(dirpath=b, filename="best", monitor="val_acc", mode="max").state_key
+
+
+def test_copied_run_keeps_its_best_checkpoint(copy_of_trained, tmp_path):
+    """A copied run resumed must not replace best.ckpt by a worse epoch."""
+    last = copy_of_trained / "checkpoints" / "last.ckpt"
+    ckpt = torch.load(last, map_location="cpu", weights_only=False)
+    (key,) = [k for k in ckpt["callbacks"] if "ModelCheckpoint" in k]
+    state = ckpt["callbacks"][key]
+    one = torch.tensor(1.0)  # epoch 0 was perfect: nothing can beat it
+    state.update(best_model_score=one, kth_value=one, best_k_models={p: one for p in state["best_k_models"]})
+    torch.save(ckpt, last)
+    moved = tmp_path / "moved"
+    shutil.move(str(copy_of_trained), moved)
+    proc = main("fit", "--resume", moved, "--trainer.max_epochs=2")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert torch.load(moved / "checkpoints" / "best.ckpt", map_location="cpu", weights_only=False)["epoch"] == 0
