@@ -1,13 +1,17 @@
-"""Conformance kit for optical encoders: the checks every registered encoder passes.
+"""Conformance kits: the checks every registered encoder, decoder, dataset and augmentation passes.
 
-optoenc runs these checks over every name in ``get_registry("encoder")``
+One kit per plugin kind (:data:`KITS`): ``encoder``, ``decoder``, ``dataset``,
+``augmentation``. optoenc runs every kit over every registered name
 (``tests/test_conformance.py``), and plugin authors reuse them for their own
-encoders, either as plain functions::
+classes, either as plain functions::
 
-    from optoenc.testing import check_encoder
+    from optoenc.testing import check_encoder, check_decoder, check_dataset
     check_encoder(MyEncoder, fidelity={"grid": (48, 64)}, sensor={"embedding": (6, 8)})
+    check_decoder(MyDecoder)
+    check_dataset(MyDataset, config={"size": 100})
 
-or as a pytest base class whose ``test_*`` methods call the checks::
+or as a pytest base class whose ``test_<check>`` methods are generated from
+the kit's list of checks::
 
     from optoenc.testing import EncoderConformance
 
@@ -15,12 +19,15 @@ or as a pytest base class whose ``test_*`` methods call the checks::
         encoder_cls = MyEncoder
         setup = {"fidelity": {"grid": (48, 64)}}
 
-Every check takes the encoder class plus an optional small setup (``config``,
-``scene``, ``sensor``, ``fidelity``: settings objects or mappings, merged over
-:data:`SMALL_SETUP`) and raises ``AssertionError`` naming the encoder and what
-is wrong. A check returns ``None`` when it ran, or a string saying why it does
-not apply (e.g. linearity for an encoder whose ``linear`` flag is false).
-Checks use tiny grids and scenes so that the whole kit runs in seconds.
+(``DecoderConformance`` / ``decoder_cls``, ``DatasetConformance`` /
+``dataset_cls``, ``AugmentationConformance`` / ``augmentation_cls`` alike.)
+
+Every check takes the class plus an optional small ``setup`` (its keys per
+kit: :attr:`Kit.setup_keys`) and raises ``AssertionError`` naming the class
+and what is wrong. A check returns ``None`` when it ran, or a string saying
+why it does not apply (e.g. linearity for an encoder whose ``linear`` flag is
+false). Numerical comparisons use one table, :data:`TOLERANCES`. Checks use
+tiny grids and scenes so that a whole kit runs in seconds.
 """
 
 from __future__ import annotations
@@ -30,14 +37,24 @@ import dataclasses
 import functools
 import re
 import warnings
+from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
 __all__ = [
+    "TOLERANCES",
     "SMALL_SETUP",
     "TINY_SETUP",
     "SCENE_SHAPE",
+    "DECODER_SHAPES",
+    "Kit",
+    "KITS",
     "CHECKS",
+    "ENCODER_CHECKS",
+    "DECODER_CHECKS",
+    "DATASET_CHECKS",
+    "AUGMENTATION_CHECKS",
     "make_encoder",
+    "make_decoder",
     "scenes",
     "check_documented",
     "check_config_roundtrip",
@@ -46,14 +63,44 @@ __all__ = [
     "check_determinism",
     "check_nonnegative",
     "check_psf",
+    "check_presets",
+    "check_cache_key",
     "check_linearity",
     "check_gradients",
     "check_gradcheck",
     "check_state_dict",
     "check_device",
     "check_encoder",
+    "check_decoder",
+    "check_dataset",
+    "check_augmentation",
     "EncoderConformance",
+    "DecoderConformance",
+    "DatasetConformance",
+    "AugmentationConformance",
 ]
+
+#: The one tolerance table of the kits: relative to the largest magnitude compared, unless noted.
+TOLERANCES: dict[str, float] = {
+    # float32 round-off of sums over the kits' small grids (eps 6e-8 x ~100 terms, with margin)
+    "float32": 1e-5,
+    # float64 round-off, same reasoning (eps 1e-16)
+    "float64": 1e-10,
+    # PSF normalisation: a float32 PSF of ~3,000 pixels summed in float64
+    "psf_sum": 1e-4,
+    # f(a x + b y) vs a f(x) + b f(y) in float32 through the scene operator (~1,000-term sums)
+    "linearity": 1e-4,
+    # float32 vs float64 optics on a 48 x 64 grid: the float32 FFT propagation's round-off
+    "dtype": 1e-3,
+    # CUDA vs CPU float32: different FFT and BLAS kernels
+    "device": 1e-4,
+    # decoder standardisation's affine invariance in float32 (a x + b through (x - m) / s)
+    "standardize": 1e-4,
+    # float64 gradcheck: finite-difference step and its absolute / relative tolerances
+    "gradcheck_eps": 1e-6,
+    "gradcheck_atol": 1e-7,
+    "gradcheck_rtol": 1e-5,
+}
 
 #: Default small setup: a 48 x 64 simulation grid and a 6 x 8 embedding.
 SMALL_SETUP: dict[str, Any] = {"fidelity": {"grid": (48, 64)}, "sensor": {"embedding": (6, 8)}}
@@ -82,8 +129,8 @@ def _merge(base: Mapping[str, Any], setup: Mapping[str, Any]) -> dict[str, dict]
     return {k: {**_as_dict(base.get(k)), **_as_dict(setup.get(k))} for k in _SETUP_KEYS}
 
 
-def _label(cls: type) -> str:
-    return f"encoder {getattr(cls, 'name', '') or cls.__name__!r} ({cls.__module__}.{cls.__qualname__})"
+def _label(cls: type, kind: str = "encoder") -> str:
+    return f"{kind} {getattr(cls, 'name', '') or cls.__name__!r} ({cls.__module__}.{cls.__qualname__})"
 
 
 def make_encoder(cls: type, *, base: Mapping[str, Any] = SMALL_SETUP, **setup: Any):
@@ -100,19 +147,20 @@ def scenes(n: int = 2, channels: int = 1, shape: tuple[int, int] = SCENE_SHAPE, 
     return torch.rand(n, channels, *shape, generator=g, dtype=dtype or torch.float32)
 
 
-def _close(a, b, rel: float, what: str, cls: type) -> None:
+def _close(a, b, rel: float, what: str, cls: type, kind: str = "encoder") -> None:
     import torch
 
     scale = max(float(b.detach().abs().max()), 1e-30)
     err = float((a.detach() - b.detach()).abs().max())
-    assert err <= rel * scale, f"{_label(cls)}: {what}: max |difference| {err:.3g} > {rel:g} x max |value| {scale:.3g}"
-    assert torch.isfinite(a.detach()).all(), f"{_label(cls)}: {what}: non-finite values"
+    label = _label(cls, kind)
+    assert err <= rel * scale, f"{label}: {what}: max |difference| {err:.3g} > {rel:g} x max |value| {scale:.3g}"
+    assert torch.isfinite(a.detach()).all(), f"{label}: {what}: non-finite values"
 
 
 def _tol(dtype) -> float:
     import torch
 
-    return 1e-10 if dtype == torch.float64 else 1e-5
+    return TOLERANCES["float64"] if dtype == torch.float64 else TOLERANCES["float32"]
 
 
 def _check(fn: Callable[..., str | None]) -> Callable[..., str | None]:
@@ -130,13 +178,10 @@ def _check(fn: Callable[..., str | None]) -> Callable[..., str | None]:
 
 
 # --------------------------------------------------------------------------- checks
-@_check
-def check_documented(cls: type, **setup: Any) -> str | None:
-    """``name``, ``Config`` (help text on every field), capability flags and ``summary()`` are there."""
-    from .encoders.base import EncoderConfig, OpticalEncoder
-
-    label = _label(cls)
-    assert isinstance(cls, type) and issubclass(cls, OpticalEncoder), f"{label}: must subclass optoenc.OpticalEncoder"
+def _documented(cls: type, kind: str, base: type, config_base: type, flags: tuple[str, ...] = ()) -> None:
+    """``name``, ``Config`` (help text on every field), flags and ``summary()`` of a plugin class of any kind."""
+    label = _label(cls, kind)
+    assert isinstance(cls, type) and issubclass(cls, base), f"{label}: must subclass {base.__module__}.{base.__qualname__}"
     name = getattr(cls, "name", "")
     assert isinstance(name, str) and re.match(r"^[a-z][a-z0-9_]*$", name), (
         f"{label}: class attribute `name` must be a lowercase identifier, got {name!r}"
@@ -145,30 +190,27 @@ def check_documented(cls: type, **setup: Any) -> str | None:
         f"{label}: abstract methods not implemented: {sorted(cls.__abstractmethods__)}"
     )
     cfg = cls.Config
-    assert dataclasses.is_dataclass(cfg) and issubclass(cfg, EncoderConfig), (
-        f"{label}: `Config` must be a dataclass deriving from optoenc.EncoderConfig, got {cfg!r}"
+    assert dataclasses.is_dataclass(cfg) and issubclass(cfg, config_base), (
+        f"{label}: `Config` must be a dataclass deriving from {config_base.__module__}.{config_base.__qualname__}, got {cfg!r}"
     )
     undocumented = [f.name for f in dataclasses.fields(cfg) if not str(f.metadata.get("help", "")).strip()]
     assert not undocumented, (
         f"{label}: Config fields without help text: {undocumented}; declare them with optoenc.setting(default, help, unit=...)"
     )
-    for flag in ("learnable", "linear"):
+    for flag in flags:
         assert isinstance(getattr(cls, flag, None), bool), f"{label}: capability flag `{flag}` must be a bool"
     summary = cls.summary()
     assert isinstance(summary, str) and summary.strip(), f"{label}: needs a class docstring (its first line is the summary)"
-    return None
 
 
-@_check
-def check_config_roundtrip(cls: type, **setup: Any) -> str | None:
-    """``Config -> to_dict -> Config(**dict)`` and omegaconf YAML give back an equal config."""
+def _config_roundtrip(cls: type, kind: str, values: Mapping[str, Any], build: Callable[[dict], Any]) -> None:
+    """``Config -> to_dict -> Config(**dict)``, omegaconf YAML, and ``build(mapping).config`` give back an equal config."""
     from omegaconf import OmegaConf
 
     from .settings import to_dict
 
-    label = _label(cls)
-    s = _merge({}, setup)
-    cfg = cls.Config(**s["config"])
+    label = _label(cls, kind)
+    cfg = cls.Config(**values)
 
     def rebuild(data: dict) -> Any:
         data = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
@@ -181,8 +223,24 @@ def check_config_roundtrip(cls: type, **setup: Any) -> str | None:
     loaded = OmegaConf.merge(schema, OmegaConf.create(yaml))
     back = rebuild(OmegaConf.to_container(loaded, resolve=True))
     assert back == cfg, f"{label}: Config through omegaconf YAML changed:\n{yaml}-> {back}"
-    enc = make_encoder(cls, **{**setup, "config": plain})
-    assert enc.config == cfg, f"{label}: building from a mapping of the config gave {enc.config}, expected {cfg}"
+    built = build(plain)
+    assert built.config == cfg, f"{label}: building from a mapping of the config gave {built.config}, expected {cfg}"
+
+
+@_check
+def check_documented(cls: type, **setup: Any) -> str | None:
+    """``name``, ``Config`` (help text on every field), capability flags and ``summary()`` are there."""
+    from .encoders.base import EncoderConfig, OpticalEncoder
+
+    _documented(cls, "encoder", OpticalEncoder, EncoderConfig, ("learnable", "linear"))
+    return None
+
+
+@_check
+def check_config_roundtrip(cls: type, **setup: Any) -> str | None:
+    """``Config -> to_dict -> Config(**dict)`` and omegaconf YAML give back an equal config."""
+    s = _merge({}, setup)
+    _config_roundtrip(cls, "encoder", s["config"], lambda plain: make_encoder(cls, **{**setup, "config": plain}))
     return None
 
 
@@ -221,7 +279,7 @@ def check_dtype(cls: type, **setup: Any) -> str | None:
     assert psf.dtype == torch.float64, f"{label}: fidelity.dtype=float64 but psf() is {psf.dtype}"
     out64 = enc64(x.double(), noise=False)
     assert out64.dtype == torch.float64, f"{label}: float64 scene at float64 fidelity gave {out64.dtype}"
-    _close(out32.double(), out64, 1e-3, "float32 and float64 outputs differ", cls)
+    _close(out32.double(), out64, TOLERANCES["dtype"], "float32 and float64 outputs differ", cls)
     return None
 
 
@@ -259,27 +317,89 @@ def check_nonnegative(cls: type, **setup: Any) -> str | None:
     return None
 
 
-@_check
-def check_psf(cls: type, **setup: Any) -> str | None:
-    """``psf()`` is ``(channels, H, W)``, finite, non-negative; gray sums to 1, RGB's spectrally weighted sums add to 1."""
+def _assert_psf(enc, label: str) -> None:
+    """The PSF contract: ``(channels, H, W)`` in the optics dtype, finite, non-negative, spectrally weighted sum 1."""
     import torch
 
     from .devices import GRAYSCALE_WEIGHTS
 
-    label = _label(cls)
+    psf = enc.psf()
+    expected = (enc.channels, *enc.geometry.grid)
+    assert tuple(psf.shape) == expected, f"{label}: psf() shape {tuple(psf.shape)}, expected {expected}"
+    assert psf.dtype == enc.optics_dtype, f"{label}: psf() dtype {psf.dtype}, expected {enc.optics_dtype}"
+    assert torch.isfinite(psf).all(), f"{label}: psf() has non-finite values"
+    psf = psf.detach()
+    floor = -_tol(psf.dtype) * float(psf.abs().max())
+    assert float(psf.min()) >= floor, f"{label}: psf() has negative values ({float(psf.min()):.3g})"
+    sums = psf.double().sum(dim=(-2, -1))
+    rgb = enc.channels == 3
+    total = float((torch.tensor(GRAYSCALE_WEIGHTS, dtype=torch.float64) * sums).sum()) if rgb else float(sums[0])
+    assert abs(total - 1) <= TOLERANCES["psf_sum"], f"{label}: psf() channel sums {sums.tolist()} (weighted total {total}) != 1"
+
+
+@_check
+def check_psf(cls: type, **setup: Any) -> str | None:
+    """``psf()`` is ``(channels, H, W)``, finite, non-negative; gray sums to 1, RGB's spectrally weighted sums add to 1."""
     for color in ("gray", "rgb"):
         enc = make_encoder(cls, **{**setup, "sensor": {**_as_dict(setup.get("sensor")), "color": color}})
-        psf = enc.psf()
-        expected = (enc.channels, *enc.geometry.grid)
-        assert tuple(psf.shape) == expected, f"{label}: psf() shape {tuple(psf.shape)}, expected {expected}"
-        assert psf.dtype == enc.optics_dtype, f"{label}: psf() dtype {psf.dtype}, expected {enc.optics_dtype}"
-        assert torch.isfinite(psf).all(), f"{label}: psf() has non-finite values"
-        psf = psf.detach()
-        floor = -_tol(psf.dtype) * float(psf.abs().max())
-        assert float(psf.min()) >= floor, f"{label}: psf() has negative values ({float(psf.min()):.3g})"
-        sums = psf.detach().double().sum(dim=(-2, -1))
-        total = float((torch.tensor(GRAYSCALE_WEIGHTS, dtype=torch.float64) * sums).sum()) if color == "rgb" else float(sums[0])
-        assert abs(total - 1) <= 1e-4, f"{label}: psf() channel sums {sums.tolist()} (weighted total {total}) != 1"
+        _assert_psf(enc, f"{_label(cls)} ({color} sensor)")
+    return None
+
+
+@_check
+def check_presets(cls: type, **setup: Any) -> str | None:
+    """Every fidelity preset, ``reference`` included, on the setup's small grid: typed knobs with the encoder's
+    own ``fidelity_presets`` applied, the PSF contract, and a finite embedding of the right shape."""
+    import torch
+
+    from .geometry import FIDELITY_PRESETS, KNOB_NAMES, Knobs
+
+    for preset in FIDELITY_PRESETS:
+        fid = {**_as_dict(_merge(SMALL_SETUP, setup)["fidelity"]), "preset": preset}
+        label = f"{_label(cls)} at fidelity.preset={preset}"
+        try:
+            enc = make_encoder(cls, **{**setup, "fidelity": fid})
+            expected = {**FIDELITY_PRESETS[preset], **cls.fidelity_presets.get(preset, {})}
+            expected.update({k: fid[k] for k in KNOB_NAMES if fid.get(k) is not None})
+            assert enc.knobs == Knobs(**expected), f"{label}: knobs {enc.knobs}, expected {Knobs(**expected)}"
+            assert enc.fidelity.resolved() == enc.knobs, f"{label}: fidelity.resolved() != knobs"
+            _assert_psf(enc, label)
+            with torch.no_grad():
+                out = enc(scenes(2, dtype=enc.optics_dtype), noise=False)
+        except AssertionError:
+            raise
+        except Exception as err:  # e.g. a knob passed on in the wrong type
+            raise AssertionError(f"{label}: {type(err).__name__}: {str(err).splitlines()[0]}") from err
+        assert tuple(out.shape) == (2, *enc.output_shape), f"{label}: output shape {tuple(out.shape)}"
+        assert torch.isfinite(out).all(), f"{label}: non-finite output"
+    return None
+
+
+@_check
+def check_cache_key(cls: type, **setup: Any) -> str | None:
+    """The embedding cache key (:func:`optoenc.cache.embedding_key`) is the same for two encoders of one
+    configuration and changes when the PSF changes with every setting kept (e.g. an edited helper function)."""
+    import torch
+
+    from .cache import embedding_key
+    from .datasets.base import DatasetConfig
+
+    label = _label(cls)
+
+    def key(c: type) -> str:
+        with torch.no_grad():
+            return embedding_key(make_encoder(c, **setup), DatasetConfig(), "kit", scenes=scenes(2))
+
+    k1 = key(cls)
+    assert key(cls) == k1, f"{label}: two encoders of one configuration give different cache keys"
+
+    def changed_psf(self):
+        raw = cls.compute_psf(self)  # the same PSF plus a faint ramp: what an edited helper would do
+        ramp = torch.linspace(0, 1, raw.shape[-1], dtype=raw.dtype, device=raw.device)
+        return raw + 0.1 * raw.mean(dim=(-2, -1), keepdim=True) * ramp
+
+    edited = type(cls.__name__, (cls,), {"compute_psf": changed_psf, "__module__": cls.__module__, "__doc__": cls.__doc__})
+    assert key(edited) != k1, f"{label}: the cache key did not change when the PSF changed: stale embeddings would be reused"
     return None
 
 
@@ -292,7 +412,7 @@ def check_linearity(cls: type, **setup: Any) -> str | None:
     x, y = scenes(2, seed=1), scenes(2, seed=2)
     lhs = enc(0.7 * x + 1.3 * y, noise=False)
     rhs = 0.7 * enc(x, noise=False) + 1.3 * enc(y, noise=False)
-    _close(lhs, rhs, 1e-4, "f(a x + b y) != a f(x) + b f(y)", cls)
+    _close(lhs, rhs, TOLERANCES["linearity"], "f(a x + b y) != a f(x) + b f(y)", cls)
     return None
 
 
@@ -340,7 +460,10 @@ def check_gradcheck(cls: type, **setup: Any) -> str | None:
     enc = make_encoder(cls, base={}, **tiny)
     x = scenes(1, shape=(4, 4), dtype=torch.float64).requires_grad_(True)
     try:
-        ok = torch.autograd.gradcheck(lambda t: enc(t, noise=False), (x,), eps=1e-6, atol=1e-7, rtol=1e-5)
+        ok = torch.autograd.gradcheck(
+            lambda t: enc(t, noise=False), (x,), eps=TOLERANCES["gradcheck_eps"],
+            atol=TOLERANCES["gradcheck_atol"], rtol=TOLERANCES["gradcheck_rtol"],
+        )
     except Exception as err:  # gradcheck raises GradcheckError with the Jacobians
         raise AssertionError(f"{_label(cls)}: float64 gradcheck w.r.t. the scene failed: {err}") from err
     assert ok, f"{_label(cls)}: float64 gradcheck w.r.t. the scene failed"
@@ -383,15 +506,93 @@ def check_device(cls: type, **setup: Any) -> str | None:
         except RuntimeError as err:  # typically a tensor left on the CPU (a PSF not built on the parameters' device)
             raise AssertionError(f"{label}: forward on CUDA failed: {str(err).splitlines()[0]}") from err
     assert out.device.type == "cuda", f"{label}: CUDA scene gave output on {out.device}"
-    _close(out.cpu(), ref, 1e-4, "CUDA and CPU outputs differ", cls)
+    _close(out.cpu(), ref, TOLERANCES["device"], "CUDA and CPU outputs differ", cls)
     return None
 
 
-#: Check name -> function, in the order :func:`check_encoder` runs them.
-CHECKS: dict[str, Callable[..., str | None]] = {
+# --------------------------------------------------------------------------- kits
+@dataclass(frozen=True)
+class Kit:
+    """A conformance kit: the named checks of one plugin kind.
+
+    Attributes:
+        kind: the plugin kind (``"encoder"``, ...).
+        attribute: the class attribute its pytest base class reads (``"encoder_cls"``).
+        checks: check name -> ``check(cls, **setup)``, in the order they run.
+        setup_keys: the keys a ``setup`` may hold.
+    """
+
+    kind: str
+    attribute: str
+    checks: dict[str, Callable[..., str | None]]
+    setup_keys: tuple[str, ...]
+
+    def run(self, cls: type, *, checks: list[str] | None = None, **setup: Any) -> dict[str, str]:
+        """Run every check (or those named in ``checks``) on ``cls``.
+
+        Returns:
+            Check name -> ``"ok"`` or ``"skipped: <reason>"``.
+
+        Raises:
+            KeyError: an unknown check name (the message lists the kit's).
+            TypeError: an unknown setup key.
+            AssertionError: the first failing check, with its name and the reason.
+        """
+        names = list(self.checks) if checks is None else list(checks)
+        unknown = [n for n in names if n not in self.checks]
+        if unknown:
+            raise KeyError(f"unknown {self.kind} check(s) {unknown}; available: {', '.join(self.checks)}")
+        bad = sorted(set(setup) - set(self.setup_keys))
+        if bad:
+            raise TypeError(f"unknown setup key(s) {bad} for the {self.kind} kit; allowed: {', '.join(self.setup_keys)}")
+        report = {}
+        for n in names:
+            try:
+                reason = self.checks[n](cls, **setup)
+            except AssertionError as err:
+                raise AssertionError(f"[{n}] {err}") from err
+            report[n] = "ok" if reason is None else f"skipped: {reason}"
+        return report
+
+    def conformance_class(self, name: str) -> type:
+        """A pytest base class with one ``test_<check>`` method per check, reading ``<attribute>`` and ``setup``."""
+
+        def run(self_, check: str) -> None:
+            import pytest
+
+            cls = getattr(self_, self.attribute)
+            if cls is None:
+                pytest.skip(f"{self.attribute} is not set")
+            reason = self.checks[check](cls, **dict(self_.setup))
+            if reason is not None:
+                pytest.skip(reason)
+
+        def test(check: str) -> Callable:
+            def method(self_) -> None:
+                run(self_, check)
+
+            method.__name__ = f"test_{check}"
+            method.__doc__ = self.checks[check].__doc__
+            return method
+
+        namespace: dict[str, Any] = {
+            "__doc__": f"pytest base class: set ``{self.attribute}`` (and optionally ``setup``); each {self.kind} check "
+            f"is a test ({', '.join(self.checks)}).",
+            "__module__": __name__,
+            self.attribute: None,
+            "setup": {},
+            "kit": self,
+        }
+        namespace.update({f"test_{c}": test(c) for c in self.checks})
+        return type(name, (), namespace)
+
+
+#: Encoder check name -> function, in the order :func:`check_encoder` runs them.
+ENCODER_CHECKS: dict[str, Callable[..., str | None]] = {
     "documented": check_documented,
     "config_roundtrip": check_config_roundtrip,
     "psf": check_psf,
+    "presets": check_presets,
     "output_shape": check_output_shape,
     "dtype": check_dtype,
     "determinism": check_determinism,
@@ -400,94 +601,444 @@ CHECKS: dict[str, Callable[..., str | None]] = {
     "gradients": check_gradients,
     "gradcheck": check_gradcheck,
     "state_dict": check_state_dict,
+    "cache_key": check_cache_key,
     "device": check_device,
+}
+#: The encoder checks under their historical name.
+CHECKS = ENCODER_CHECKS
+
+
+# --------------------------------------------------------------------------- decoders
+#: Embedding shapes ``(C, a, b)`` the decoder kit tries: from 1 x 1 up, gray and RGB, non-square.
+DECODER_SHAPES: tuple[tuple[int, int, int], ...] = ((1, 1, 1), (1, 1, 4), (3, 2, 3), (1, 6, 8), (3, 12, 16))
+_DECODER_KEYS = ("config", "in_shapes", "num_classes")
+
+
+def _decoder_setup(setup: Mapping[str, Any]) -> tuple[dict, tuple, int]:
+    bad = sorted(set(setup) - set(_DECODER_KEYS))
+    if bad:
+        raise TypeError(f"unknown setup key(s) {bad}; allowed: {', '.join(_DECODER_KEYS)}")
+    shapes = tuple(tuple(int(n) for n in s) for s in setup.get("in_shapes") or DECODER_SHAPES)
+    return _as_dict(setup.get("config")), shapes, int(setup.get("num_classes", 10))
+
+
+def make_decoder(cls: type, in_shape=(1, 6, 8), num_classes: int = 10, learnable_encoder: bool = False, config=None):
+    """Instantiate decoder ``cls`` as the framework does (keyword arguments from the encoder and the dataset)."""
+    return cls(config or None, in_shape=tuple(in_shape), num_classes=num_classes, learnable_encoder=learnable_encoder)
+
+
+def _embeddings(n: int, shape: tuple[int, ...], seed: int = 0):
+    import torch
+
+    g = torch.Generator().manual_seed(seed)
+    return torch.rand(n, *shape, generator=g) * 3.0 + 0.5  # not centred, not unit: the norms must do their job
+
+
+def _decoder_check(fn: Callable[..., str | None]) -> Callable[..., str | None]:
+    """Run a decoder check with the global RNG forked (parameter initialisation draws from it)."""
+
+    @functools.wraps(fn)
+    def wrapper(cls: type, **setup: Any) -> str | None:
+        import torch
+
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(0)
+            return fn(cls, **setup)
+
+    return wrapper
+
+
+@_decoder_check
+def check_decoder_documented(cls: type, **setup: Any) -> str | None:
+    """``name``, ``Config`` deriving from ``DecoderConfig`` with help on every field, ``flatten`` a bool, a summary."""
+    from .decoders import Decoder, DecoderConfig
+
+    _documented(cls, "decoder", Decoder, DecoderConfig, ("flatten",))
+    return None
+
+
+@_decoder_check
+def check_decoder_config_roundtrip(cls: type, **setup: Any) -> str | None:
+    """``Config -> to_dict -> Config(**dict)`` and omegaconf YAML give back an equal config."""
+    config, shapes, k = _decoder_setup(setup)
+    _config_roundtrip(cls, "decoder", config, lambda plain: make_decoder(cls, shapes[0], k, config=plain))
+    return None
+
+
+@_decoder_check
+def check_decoder_shapes(cls: type, **setup: Any) -> str | None:
+    """Every embedding shape from 1 x 1 up, both normalisations (fixed / learned encoder), train and eval mode:
+    finite logits ``(B, num_classes)``; a single example in eval mode."""
+    import torch
+
+    config, shapes, k = _decoder_setup(setup)
+    label = _label(cls, "decoder")
+    for shape in shapes:
+        for learnable in (False, True):
+            dec = make_decoder(cls, shape, k, learnable, config)
+            for mode, n in (("train", 4), ("eval", 4), ("eval", 1)):
+                dec.train(mode == "train")
+                with torch.no_grad():
+                    out = dec(_embeddings(n, shape))
+                where = f"in_shape {shape}, learnable_encoder={learnable}, {mode} mode, batch {n}"
+                assert tuple(out.shape) == (n, k), f"{label}: {where}: logits shape {tuple(out.shape)}, expected {(n, k)}"
+                assert torch.isfinite(out).all(), f"{label}: {where}: non-finite logits"
+    return None
+
+
+@_decoder_check
+def check_decoder_gradients(cls: type, **setup: Any) -> str | None:
+    """Cross-entropy gradients reach every trainable parameter (finite, one non-zero) and the embedding
+    (so a learned encoder upstream is trained), for every kit shape."""
+    import torch
+
+    config, shapes, k = _decoder_setup(setup)
+    label = _label(cls, "decoder")
+    for shape in shapes:
+        dec = make_decoder(cls, shape, k, True, config)
+        dec.train()
+        x = _embeddings(4, shape).requires_grad_(True)
+        labels = torch.arange(4) % k
+        torch.nn.functional.cross_entropy(dec(x), labels).backward()
+        params = {n: p for n, p in dec.named_parameters() if p.requires_grad}
+        assert params, f"{label}: in_shape {shape}: no trainable parameters"
+        missing = sorted(n for n, p in params.items() if p.grad is None)
+        assert not missing, f"{label}: in_shape {shape}: no gradient reaches {missing}"
+        bad = sorted(n for n, p in params.items() if not torch.isfinite(p.grad).all())
+        assert not bad, f"{label}: in_shape {shape}: non-finite gradients in {bad}"
+        assert any(float(p.grad.abs().max()) > 0 for p in params.values()), f"{label}: in_shape {shape}: all gradients zero"
+        assert x.grad is not None and torch.isfinite(x.grad).all() and float(x.grad.abs().max()) > 0, (
+            f"{label}: in_shape {shape}: no finite, non-zero gradient reaches the embedding"
+        )
+    return None
+
+
+@_decoder_check
+def check_decoder_standardize(cls: type, **setup: Any) -> str | None:
+    """``embedding_norm=standardize`` makes the logits invariant to an affine change of the embedding
+    (``a x + b`` with statistics ``a m + b``, ``a s``), as for a brighter scene or another gain."""
+    import torch
+
+    config, shapes, k = _decoder_setup(setup)
+    shape = shapes[-1]
+    dec = make_decoder(cls, shape, k, False, {**config, "embedding_norm": "standardize"}).eval()
+    x, (m, sd), (a, b) = _embeddings(4, shape), (2.0, 0.8), (7.0, 3.0)
+    with torch.no_grad():
+        dec.set_statistics(m, sd)
+        y1 = dec(x)
+        dec.set_statistics(a * m + b, a * sd)
+        y2 = dec(a * x + b)
+    _close(y2, y1, TOLERANCES["standardize"], "standardize: logits changed under an affine change of the embedding", cls, "decoder")
+    return None
+
+
+@_decoder_check
+def check_decoder_state_dict(cls: type, **setup: Any) -> str | None:
+    """A fresh decoder loading another's ``state_dict`` (statistics and running norms included) gives the same logits."""
+    import torch
+
+    config, shapes, k = _decoder_setup(setup)
+    shape = shapes[-1]
+    for learnable in (False, True):
+        torch.manual_seed(1)
+        a = make_decoder(cls, shape, k, learnable, config)
+        torch.manual_seed(2)
+        b = make_decoder(cls, shape, k, learnable, config)
+        a.set_statistics(1.5, 0.7)
+        with torch.no_grad():
+            a.train()(_embeddings(8, shape, seed=3))  # moves batch-norm running statistics
+        b.load_state_dict(copy.deepcopy(a.state_dict()), strict=True)
+        x = _embeddings(4, shape, seed=4)
+        with torch.no_grad():
+            ya, yb = a.eval()(x), b.eval()(x)
+        assert torch.equal(ya, yb), f"{_label(cls, 'decoder')}: logits differ after load_state_dict (learnable_encoder={learnable})"
+    return None
+
+
+@_decoder_check
+def check_decoder_determinism(cls: type, **setup: Any) -> str | None:
+    """Eval mode: the same embedding gives identical logits twice."""
+    import torch
+
+    config, shapes, k = _decoder_setup(setup)
+    dec = make_decoder(cls, shapes[-1], k, True, config).eval()
+    x = _embeddings(4, shapes[-1])
+    with torch.no_grad():
+        assert torch.equal(dec(x), dec(x)), f"{_label(cls, 'decoder')}: two eval-mode passes differ"
+    return None
+
+
+#: Decoder check name -> function.
+DECODER_CHECKS: dict[str, Callable[..., str | None]] = {
+    "documented": check_decoder_documented,
+    "config_roundtrip": check_decoder_config_roundtrip,
+    "shapes": check_decoder_shapes,
+    "gradients": check_decoder_gradients,
+    "standardize": check_decoder_standardize,
+    "state_dict": check_decoder_state_dict,
+    "determinism": check_decoder_determinism,
+}
+
+
+# --------------------------------------------------------------------------- datasets
+_LOADED: dict[tuple, Any] = {}
+
+
+def _load(cls: type, config: Mapping[str, Any], fresh: bool = False):
+    """``cls(config).load()``, kept for the next check (the two most recent loads)."""
+    key = (cls, repr(sorted(config.items())))
+    if fresh or key not in _LOADED:
+        splits = cls(dict(config) or None).load()
+        if fresh:
+            return splits
+        while len(_LOADED) >= 2:
+            _LOADED.pop(next(iter(_LOADED)))
+        _LOADED[key] = splits
+    return _LOADED[key]
+
+
+def _dataset_setup(setup: Mapping[str, Any]) -> tuple[dict, dict | None]:
+    bad = sorted(set(setup) - {"config", "variant"})
+    if bad:
+        raise TypeError(f"unknown setup key(s) {bad}; allowed: config, variant")
+    variant = setup.get("variant")
+    return _as_dict(setup.get("config")), (None if variant is None else _as_dict(variant))
+
+
+def check_dataset_documented(cls: type, **setup: Any) -> str | None:
+    """``name``, ``Config`` deriving from ``DatasetConfig`` with help on every field, a summary."""
+    from .datasets.base import Dataset, DatasetConfig
+
+    _documented(cls, "dataset", Dataset, DatasetConfig)
+    return None
+
+
+def check_dataset_config_roundtrip(cls: type, **setup: Any) -> str | None:
+    """``Config -> to_dict -> Config(**dict)`` and omegaconf YAML give back an equal config."""
+    config, _ = _dataset_setup(setup)
+    _config_roundtrip(cls, "dataset", config, lambda plain: cls(plain))
+    return None
+
+
+def check_dataset_splits(cls: type, **setup: Any) -> str | None:
+    """``load()`` gives :class:`Splits`: images float32 ``(N, C, h, w)`` (C 1 or 3, one shape for all splits),
+    finite, in ``[0, 1]``; labels int64 ``(N,)`` in ``[0, num_classes)``; no split empty; class names, if given,
+    one per class."""
+    import torch
+
+    from .datasets.base import Splits
+
+    config, _ = _dataset_setup(setup)
+    label = _label(cls, "dataset")
+    s = _load(cls, config)
+    assert isinstance(s, Splits), f"{label}: load() returned {type(s).__name__}, expected optoenc.datasets.base.Splits"
+    assert isinstance(s.num_classes, int) and s.num_classes >= 2, f"{label}: num_classes {s.num_classes!r} must be an int >= 2"
+    shapes = set()
+    for name in ("train", "val", "test"):
+        x, y = getattr(s, name)
+        where = f"{label}: {name} split"
+        assert x.dtype == torch.float32 and x.dim() == 4, f"{where}: images {x.dtype} {tuple(x.shape)}, expected float32 (N, C, h, w)"
+        assert x.shape[1] in (1, 3) and min(x.shape[-2:]) >= 1, f"{where}: images {tuple(x.shape)}: C must be 1 or 3"
+        assert y.dtype == torch.int64 and y.dim() == 1 and len(y) == len(x), (
+            f"{where}: labels {y.dtype} {tuple(y.shape)}, expected int64 ({len(x)},)"
+        )
+        assert len(y) >= 1, f"{where} is empty"
+        assert torch.isfinite(x).all() and float(x.min()) >= 0 and float(x.max()) <= 1, (
+            f"{where}: images must be finite intensities in [0, 1], got [{float(x.min()):.3g}, {float(x.max()):.3g}]"
+        )
+        assert int(y.min()) >= 0 and int(y.max()) < s.num_classes, f"{where}: labels outside [0, {s.num_classes})"
+        shapes.add(tuple(x.shape[1:]))
+    assert len(shapes) == 1, f"{label}: the splits' images differ in shape: {sorted(shapes)}"
+    names = getattr(s, "class_names", ())
+    assert not names or (len(names) == s.num_classes and all(isinstance(n, str) for n in names)), (
+        f"{label}: class_names {names!r} must be {s.num_classes} strings (or empty)"
+    )
+    return None
+
+
+def check_dataset_disjoint(cls: type, **setup: Any) -> str | None:
+    """No image appears in two splits (compared by content): the test split stays unseen."""
+    import hashlib
+
+    config, _ = _dataset_setup(setup)
+    s = _load(cls, config)
+
+    def digests(x) -> set:
+        rows = x.contiguous().numpy().reshape(len(x), -1)
+        return {hashlib.blake2b(r.tobytes(), digest_size=16).digest() for r in rows}
+
+    d = {k: digests(getattr(s, k).images) for k in ("train", "val", "test")}
+    for a, b in (("train", "val"), ("train", "test"), ("val", "test")):
+        both = len(d[a] & d[b])
+        assert not both, f"{_label(cls, 'dataset')}: {both} image(s) in both the {a} and the {b} split"
+    return None
+
+
+def check_dataset_digest(cls: type, **setup: Any) -> str | None:
+    """``content_digest()`` is stable (a fresh load gives the same digest and tensors) and sensitive: without a
+    source digest one changed pixel changes it; with ``setup['variant']`` (a config reading other source data)
+    different content gives a different digest."""
+    import dataclasses as dc
+
+    import torch
+
+    config, variant = _dataset_setup(setup)
+    label = _label(cls, "dataset")
+    a, b = _load(cls, config), _load(cls, config, fresh=True)
+    assert isinstance(a.digest, str), f"{label}: Splits.digest must be a string, got {type(a.digest).__name__}"
+    for k in ("train", "val", "test"):
+        assert torch.equal(getattr(a, k).images, getattr(b, k).images) and torch.equal(getattr(a, k).labels, getattr(b, k).labels), (
+            f"{label}: two loads of one config differ in the {k} split (the cache key would not identify the data)"
+        )
+    assert a.content_digest() == b.content_digest(), f"{label}: content_digest() differs between two loads of one config"
+    if not a.digest:
+        x = a.test.images.clone()
+        x.view(-1)[0] = 0.5 if float(x.view(-1)[0]) != 0.5 else 0.25
+        edited = dc.replace(a, test=type(a.test)(x, a.test.labels))
+        assert edited.content_digest() != a.content_digest(), f"{label}: content_digest() ignores a changed pixel"
+    if variant is not None:
+        v = _load(cls, variant, fresh=True)
+        same = all(
+            getattr(v, k).images.shape == getattr(a, k).images.shape and torch.equal(getattr(v, k).images, getattr(a, k).images)
+            for k in ("train", "val", "test")
+        )
+        if not same:
+            assert v.content_digest() != a.content_digest(), (
+                f"{label}: setup['variant'] loads other data with the same digest {a.content_digest()[:12]}...: "
+                "Splits.digest must change with the source data"
+            )
+    return None
+
+
+#: Dataset check name -> function.
+DATASET_CHECKS: dict[str, Callable[..., str | None]] = {
+    "documented": check_dataset_documented,
+    "config_roundtrip": check_dataset_config_roundtrip,
+    "splits": check_dataset_splits,
+    "disjoint": check_dataset_disjoint,
+    "digest": check_dataset_digest,
+}
+
+
+# --------------------------------------------------------------------------- augmentations
+def _canvas(setup: Mapping[str, Any], dtype=None, seed: int = 0):
+    """A small canvas ``(2, 1, rows, cols)`` with a centred 8 x 6 scene of 12 cm on a 20 x 27 cm field of view."""
+    from .augment import canvas_geometry, to_canvas
+
+    bad = sorted(set(setup) - {"config"})
+    if bad:
+        raise TypeError(f"unknown setup key(s) {bad}; allowed: config")
+    geometry = canvas_geometry(0.12, SCENE_SHAPE, 0.20, 0.27)
+    return to_canvas(scenes(2, shape=SCENE_SHAPE, dtype=dtype, seed=seed), geometry), geometry
+
+
+def _augment(cls: type, setup: Mapping[str, Any], canvas, geometry, seed: int):
+    import torch
+
+    aug = cls(_as_dict(setup.get("config")) or None)
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        return aug(canvas, geometry)
+
+
+def check_augmentation_documented(cls: type, **setup: Any) -> str | None:
+    """``name``, a settings ``Config`` with help on every field, a summary."""
+    from .augment import Augmentation
+    from .settings import Settings
+
+    _documented(cls, "augmentation", Augmentation, Settings)
+    return None
+
+
+def check_augmentation_config_roundtrip(cls: type, **setup: Any) -> str | None:
+    """``Config -> to_dict -> Config(**dict)`` and omegaconf YAML give back an equal config."""
+    _config_roundtrip(cls, "augmentation", _as_dict(setup.get("config")), lambda plain: cls(plain))
+    return None
+
+
+def check_augmentation_canvas(cls: type, **setup: Any) -> str | None:
+    """The canvas keeps its shape and dtype (float32 and float64) and stays finite and non-negative."""
+    import torch
+
+    label = _label(cls, "augmentation")
+    for dtype in (torch.float32, torch.float64):
+        canvas, geometry = _canvas(setup, dtype)
+        out = _augment(cls, setup, canvas, geometry, seed=0)
+        assert tuple(out.shape) == tuple(canvas.shape) and out.dtype == dtype, (
+            f"{label}: {dtype} canvas {tuple(canvas.shape)} gave {out.dtype} {tuple(out.shape)}"
+        )
+        assert torch.isfinite(out).all(), f"{label}: non-finite output"
+        assert float(out.min()) >= -_tol(dtype) * float(canvas.max()), f"{label}: negative intensity {float(out.min()):.3g}"
+    return None
+
+
+def check_augmentation_determinism(cls: type, **setup: Any) -> str | None:
+    """The same torch seed gives the same transform (runs are reproducible)."""
+    import torch
+
+    canvas, geometry = _canvas(setup)
+    a, b = (_augment(cls, setup, canvas, geometry, seed=5) for _ in range(2))
+    assert torch.equal(a, b), f"{_label(cls, 'augmentation')}: two draws under one torch seed differ"
+    return None
+
+
+def check_augmentation_linearity(cls: type, **setup: Any) -> str | None:
+    """Under one seed, ``T(a x + b y) = a T(x) + b T(y)``: an object-plane transform moves light, it does not
+    create it (set ``linear = False`` on the class for a non-linear one)."""
+    if not getattr(cls, "linear", True):
+        return "the augmentation is not linear in the intensity (linear = False)"
+    x, geometry = _canvas(setup, seed=1)
+    y, _ = _canvas(setup, seed=2)
+    lhs = _augment(cls, setup, 0.7 * x + 1.3 * y, geometry, seed=3)
+    rhs = 0.7 * _augment(cls, setup, x, geometry, seed=3) + 1.3 * _augment(cls, setup, y, geometry, seed=3)
+    _close(lhs, rhs, TOLERANCES["linearity"], "T(a x + b y) != a T(x) + b T(y)", cls, "augmentation")
+    return None
+
+
+#: Augmentation check name -> function.
+AUGMENTATION_CHECKS: dict[str, Callable[..., str | None]] = {
+    "documented": check_augmentation_documented,
+    "config_roundtrip": check_augmentation_config_roundtrip,
+    "canvas": check_augmentation_canvas,
+    "determinism": check_augmentation_determinism,
+    "linearity": check_augmentation_linearity,
+}
+
+
+# --------------------------------------------------------------------------- the kits
+#: Plugin kind -> its kit (the kinds of :data:`optoenc.registry.KINDS`).
+KITS: dict[str, Kit] = {
+    "encoder": Kit("encoder", "encoder_cls", ENCODER_CHECKS, _SETUP_KEYS),
+    "decoder": Kit("decoder", "decoder_cls", DECODER_CHECKS, _DECODER_KEYS),
+    "augmentation": Kit("augmentation", "augmentation_cls", AUGMENTATION_CHECKS, ("config",)),
+    "dataset": Kit("dataset", "dataset_cls", DATASET_CHECKS, ("config", "variant")),
 }
 
 
 def check_encoder(cls: type, *, checks: list[str] | None = None, **setup: Any) -> dict[str, str]:
-    """Run every conformance check (or those named in ``checks``) on ``cls``.
-
-    Args:
-        cls: an :class:`~optoenc.OpticalEncoder` subclass.
-        checks: names from :data:`CHECKS` (default: all).
-        **setup: ``config``, ``scene``, ``sensor``, ``fidelity`` (mappings),
-            merged over :data:`SMALL_SETUP`.
-
-    Returns:
-        Check name -> ``"ok"`` or ``"skipped: <reason>"``.
-
-    Raises:
-        AssertionError: the first failing check, with its name and the reason.
-    """
-    names = list(CHECKS) if checks is None else list(checks)
-    unknown = [n for n in names if n not in CHECKS]
-    if unknown:
-        raise KeyError(f"unknown check(s) {unknown}; available: {', '.join(CHECKS)}")
-    report = {}
-    for n in names:
-        try:
-            reason = CHECKS[n](cls, **setup)
-        except AssertionError as err:
-            raise AssertionError(f"[{n}] {err}") from err
-        report[n] = "ok" if reason is None else f"skipped: {reason}"
-    return report
+    """Run the encoder kit on ``cls``: ``setup`` holds ``config``, ``scene``, ``sensor``, ``fidelity``
+    (mappings, merged over :data:`SMALL_SETUP`). See :meth:`Kit.run`."""
+    return KITS["encoder"].run(cls, checks=checks, **setup)
 
 
-class EncoderConformance:
-    """pytest base class: set ``encoder_cls`` (and optionally ``setup``); each check is a test.
+def check_decoder(cls: type, *, checks: list[str] | None = None, **setup: Any) -> dict[str, str]:
+    """Run the decoder kit on ``cls``: ``setup`` holds ``config``, ``in_shapes`` (default
+    :data:`DECODER_SHAPES`) and ``num_classes`` (default 10). See :meth:`Kit.run`."""
+    return KITS["decoder"].run(cls, checks=checks, **setup)
 
-    Example:
-        class TestPinhole(EncoderConformance):
-            encoder_cls = Pinhole
-            setup = {"fidelity": {"grid": (48, 64)}, "sensor": {"embedding": (6, 8)}}
-    """
 
-    encoder_cls: type | None = None
-    setup: dict[str, Any] = {}
+def check_dataset(cls: type, *, checks: list[str] | None = None, **setup: Any) -> dict[str, str]:
+    """Run the dataset kit on ``cls``: ``setup`` holds ``config`` and optionally ``variant`` (a config reading
+    other source data). See :meth:`Kit.run`."""
+    return KITS["dataset"].run(cls, checks=checks, **setup)
 
-    def _run(self, name: str) -> None:
-        if self.encoder_cls is None:
-            import pytest
 
-            pytest.skip("encoder_cls is not set")
-        reason = CHECKS[name](self.encoder_cls, **dict(self.setup))
-        if reason is not None:
-            import pytest
+def check_augmentation(cls: type, *, checks: list[str] | None = None, **setup: Any) -> dict[str, str]:
+    """Run the augmentation kit on ``cls``: ``setup`` holds ``config``. See :meth:`Kit.run`."""
+    return KITS["augmentation"].run(cls, checks=checks, **setup)
 
-            pytest.skip(reason)
 
-    def test_documented(self):
-        self._run("documented")
-
-    def test_config_roundtrip(self):
-        self._run("config_roundtrip")
-
-    def test_psf(self):
-        self._run("psf")
-
-    def test_output_shape(self):
-        self._run("output_shape")
-
-    def test_dtype(self):
-        self._run("dtype")
-
-    def test_determinism(self):
-        self._run("determinism")
-
-    def test_nonnegative(self):
-        self._run("nonnegative")
-
-    def test_linearity(self):
-        self._run("linearity")
-
-    def test_gradients(self):
-        self._run("gradients")
-
-    def test_gradcheck(self):
-        self._run("gradcheck")
-
-    def test_state_dict(self):
-        self._run("state_dict")
-
-    def test_device(self):
-        self._run("device")
+EncoderConformance = KITS["encoder"].conformance_class("EncoderConformance")
+DecoderConformance = KITS["decoder"].conformance_class("DecoderConformance")
+DatasetConformance = KITS["dataset"].conformance_class("DatasetConformance")
+AugmentationConformance = KITS["augmentation"].conformance_class("AugmentationConformance")
