@@ -171,6 +171,9 @@ def cmd_fit(args, extra) -> int:
     print(f"run directory: {run_dir}", file=sys.stderr)
     try:
         summary = fit(run, run_dir, resume=bool(args.resume))
+    except Interrupted as err:
+        err.where = err.where or f"while preparing {run_dir} (before training; nothing to resume, start the run again)"
+        raise
     finally:
         remove_if_empty(run_dir)  # a start that failed leaves no stub directory behind
     line = f"val_acc {summary['val_acc']:.4f}  test_acc {summary['test_acc']:.4f}"

@@ -1,0 +1,48 @@
+"""Cause 5: SIGINT / SIGTERM mid-run: exit 130 / 143, say where the run is and the real resume command, mark the run."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import time
+
+import pytest
+
+from optoenc.callbacks import read_metrics
+
+from faultkit import TINY, optoenc_cmd, run
+
+
+@pytest.mark.parametrize("sig,code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_signal_mid_run(tmp_path, sig, code):
+    run_dir = tmp_path / "runs" / "r"
+    log = open(tmp_path / "err.txt", "w")
+    proc = subprocess.Popen(
+        [*optoenc_cmd(), "fit", *TINY, "--trainer.max_epochs=100000", f"--output.root={tmp_path / 'runs'}", "--output.name=r"],
+        stdout=subprocess.DEVNULL, stderr=log,
+    )
+    try:
+        deadline = time.time() + 240
+        while len(read_metrics(run_dir / "metrics.csv")) < 2:  # two epochs done: mid-training for sure
+            assert proc.poll() is None and time.time() < deadline, (tmp_path / "err.txt").read_text()[-2000:]
+            time.sleep(0.2)
+        proc.send_signal(sig)
+        rc = proc.wait(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        log.close()
+    err = (tmp_path / "err.txt").read_text()
+    # Ctrl-C used to exit 1 silently, SIGTERM 0 silently; the message said the literal RUN_DIR
+    assert rc == code, err[-3000:]
+    assert "Traceback" not in err and "RUN_DIR" not in err
+    assert f"interrupted by {sig.name}" in err and f"optoenc fit --resume {run_dir}" in err
+    marker = json.loads((run_dir / "interrupted.json").read_text())
+    assert marker["signal"] == sig.name and marker["resume"] == f"optoenc fit --resume {run_dir}"
+    if sig == signal.SIGINT:  # the printed command works and completes the run (marker gone)
+        done = len(read_metrics(run_dir / "metrics.csv"))
+        proc = run("fit", "--resume", run_dir, f"--trainer.max_epochs={done + 1}")
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        assert not (run_dir / "interrupted.json").exists() and (run_dir / "summary.json").exists()
+        assert [int(r["epoch"]) for r in read_metrics(run_dir / "metrics.csv")] == list(range(done + 1))
