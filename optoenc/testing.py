@@ -104,8 +104,12 @@ TOLERANCES: dict[str, float] = {
 
 #: Default small setup: a 48 x 64 simulation grid and a 6 x 8 embedding.
 SMALL_SETUP: dict[str, Any] = {"fidelity": {"grid": (48, 64)}, "sensor": {"embedding": (6, 8)}}
-#: The float64 gradcheck setup: a 12 x 16 grid and a 3 x 4 embedding.
-TINY_SETUP: dict[str, Any] = {"fidelity": {"grid": (12, 16), "dtype": "float64"}, "sensor": {"embedding": (3, 4)}}
+#: The float64 gradcheck setup: a 12 x 16 grid and a 3 x 4 embedding on a 0.37 x 0.50 mm sensor (240 x 320
+#: pixels), so that every built-in's scene image spans more than one grid pixel (31 um).
+TINY_SETUP: dict[str, Any] = {
+    "fidelity": {"grid": (12, 16), "dtype": "float64"},
+    "sensor": {"embedding": (3, 4), "resolution": (240, 320)},
+}
 #: Scene size (rows, columns) used by the checks; not square, to catch transposes.
 SCENE_SHAPE = (8, 6)
 _SETUP_KEYS = ("config", "scene", "sensor", "fidelity")
@@ -445,7 +449,7 @@ def check_gradients(cls: type, **setup: Any) -> str | None:
 
 @_check
 def check_gradcheck(cls: type, **setup: Any) -> str | None:
-    """float64 ``torch.autograd.gradcheck`` w.r.t. the scene on a tiny grid (12 x 16, embedding 3 x 4)."""
+    """float64 ``torch.autograd.gradcheck`` w.r.t. the scene on a tiny grid and sensor (:data:`TINY_SETUP`)."""
     import torch
 
     if not cls.linear:
