@@ -20,7 +20,7 @@ import os
 import warnings
 import zlib
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 import torch
 
@@ -135,11 +135,39 @@ def store(key: str, tensors: dict[str, torch.Tensor], root: str | None = None) -
     return atomic_write_bytes(_path(key, root), _MAGIC + b"%08x" % zlib.crc32(payload) + payload)
 
 
-def cached(key: str, compute: Callable[[], dict[str, torch.Tensor]], root: str | None = None, enabled: bool = True):
-    """``load(key)`` if present, else ``compute()`` and store it. Returns ``(tensors, hit)``."""
+def _mismatch(tensors: Any, expect: Mapping[str, int] | None) -> str:
+    """Why a loaded entry cannot be what was asked for ("" if it can): not tensors, other keys, other lengths."""
+    if not isinstance(tensors, dict) or not all(isinstance(v, torch.Tensor) for v in tensors.values()):
+        return "not a mapping of tensors"
+    if expect is None:
+        return ""
+    if set(tensors) != set(expect):
+        return f"holds {sorted(tensors)}, expected {sorted(expect)}"
+    bad = [k for k, n in expect.items() if tensors[k].dim() == 0 or len(tensors[k]) != n]
+    return f"wrong number of examples in {bad}" if bad else ""
+
+
+def cached(
+    key: str,
+    compute: Callable[[], dict[str, torch.Tensor]],
+    root: str | None = None,
+    enabled: bool = True,
+    expect: Mapping[str, int] | None = None,
+):
+    """``load(key)`` if present, else ``compute()`` and store it. Returns ``(tensors, hit)``.
+
+    Args:
+        expect: ``{name: number of examples}`` the entry must hold; an entry
+            with a valid checksum but other names or lengths (crafted, or
+            written by other code) is treated as corrupt: removed and recomputed.
+    """
     if enabled:
         hit = load(key, root)
-        if hit is not None:
+        why = _mismatch(hit, expect) if hit is not None else ""
+        if why:
+            warnings.warn(f"corrupt embedding cache entry {_path(key, root)} ({why}); recomputing", stacklevel=2)
+            _path(key, root).unlink(missing_ok=True)
+        elif hit is not None:
             return hit, True
     tensors = compute()
     if enabled:

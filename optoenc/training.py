@@ -89,6 +89,7 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
                          for k, (x, _y) in data.items()},
                 root=run.trainer.cache_dir,
                 enabled=run.trainer.cache,
+                expect={k: len(v[1]) for k, v in data.items()},
             )
             data = {k: (emb[k], y) for k, (_x, y) in data.items()}
         else:
@@ -100,6 +101,7 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
             lambda: {k: _encode(encoder, x, ebs, progress, k) for k, (x, _y) in data.items()},
             root=run.trainer.cache_dir,
             enabled=run.trainer.cache,
+            expect={k: len(v[1]) for k, v in data.items()},
         )
         data = {k: (emb[k], y) for k, (_x, y) in data.items()}
     module = EncoderClassifier(
