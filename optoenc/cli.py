@@ -80,18 +80,23 @@ def _parser() -> argparse.ArgumentParser:
     b = sub.add_parser(
         "bench",
         help="benchmarks (speed and accuracy, side by side)",
-        description="fidelity (default): the paper pipeline, the presets and a sweep of each knob against a "
-        "high-fidelity reference; auto: the cheapest measured setting meeting --tolerance; optics: PSF timings.",
+        description="fidelity (default): the paper pipeline (as published and on its grid), the presets and a "
+        "sweep of each knob against the converged truth; converge: the convergence study behind the truth; "
+        "speed: the learned SLM's step vs the published paper step, interleaved; auto: the cheapest measured "
+        "setting meeting --tolerance; optics: PSF timings.",
     )
-    b.add_argument("what", nargs="?", default="fidelity", choices=("fidelity", "auto", "optics"), help="which benchmark")
+    b.add_argument("what", nargs="?", default="fidelity", choices=("fidelity", "converge", "speed", "auto", "optics"),
+                   help="which benchmark")
     b.add_argument("--out", metavar="DIR", help="also write CSV/PNG here")
     b.add_argument("--encoders", metavar="A,B", help="comma-separated encoders (default: every built-in)")
     b.add_argument("--presets", metavar="A,B", help="comma-separated presets (default: reference,default,fast)")
     b.add_argument("--digits", type=int, default=256, help="test digits the embedding error is measured on")
     b.add_argument("--sweep", action=argparse.BooleanOptionalAction, default=True, help="sweep each knob alone")
     b.add_argument("--paper", action=argparse.BooleanOptionalAction, default=True, help="run the paper pipeline")
-    b.add_argument("--hifi-grid", default="1536x2048", metavar="HxW", help="grid of the high-fidelity reference")
-    b.add_argument("--hifi-padding", default="1.0", help="padding of the high-fidelity reference")
+    b.add_argument("--truth-grid", default="3040x4056", metavar="HxW", help="finest grid of the truth (the sensor)")
+    b.add_argument("--speed", action=argparse.BooleanOptionalAction, default=True,
+                   help="fidelity: also time learned_slm's default step vs the published paper step, interleaved")
+    b.add_argument("--repeats", type=int, default=5, help="speed: interleaved repeats per thread count")
     b.add_argument("--paper-grid", default="380x507", metavar="HxW", help="grid of the paper pipeline")
     b.add_argument("--encode-count", type=int, default=10000, help="digits encoded for the fixed encoders' encode time")
     b.add_argument("--encode-all", action=argparse.BooleanOptionalAction, default=True,
@@ -306,84 +311,9 @@ def cmd_simulate(args, extra) -> int:
 
 
 def cmd_bench(args, extra) -> int:
-    if args.what == "optics":
-        from . import bench_optics
+    from .bench.command import main as bench_main
 
-        rows = bench_optics.run()
-        print(bench_optics.format_table(rows))
-        return 0
-
-    from tqdm.auto import tqdm
-
-    from . import bench
-
-    def grid(key: str, text: str) -> tuple[int, int]:
-        try:
-            h, w = (int(v) for v in text.lower().split("x"))
-            if h >= 1 and w >= 1:
-                return h, w
-        except ValueError:
-            pass
-        raise ConfigError(key, text, "must be HxW with positive integers, e.g. 1536x2048")
-
-    names = lambda text: [v.strip() for v in text.split(",") if v.strip()]  # noqa: E731
-    kw = dict(
-        presets=names(args.presets) if args.presets else bench.PRESETS,
-        digits=args.digits,
-        sweep=args.sweep,
-        hifi_grid=grid("--hifi-grid", args.hifi_grid),
-        hifi_padding=args.hifi_padding,
-        paper_grid=grid("--paper-grid", args.paper_grid),
-        encode_count=args.encode_count,
-    )
-    bar = tqdm(total=1, desc="bench", unit="setting", file=sys.stderr, disable=None, leave=False)
-
-    def progress(done: int, total: int, what: str) -> None:
-        bar.total = total
-        bar.n = done
-        bar.set_description(what)
-        bar.refresh()
-
-    if args.what == "auto":
-        if not args.encoder:
-            raise ConfigError("--encoder", None, "required by `optoenc bench auto` (e.g. --encoder learned_slm)")
-        kw.pop("paper_grid")
-        with bar:
-            choice = bench.auto_select(
-                args.encoder, args.tolerance, args.from_csv, safety=args.safety, progress=progress,
-                **({} if args.from_csv else kw),
-            )
-        f = choice.fidelity.resolved()
-        print(f"auto {args.encoder} @ tolerance {100 * args.tolerance:g}%: {choice.describe()}")
-        print(f"  --fidelity.preset={choice.fidelity.preset} --fidelity.grid={list(f['grid'])} "
-              f"--fidelity.dtype={f['dtype']} --fidelity.padding={f['padding']}")
-        print(f"  ({choice.considered} measured settings considered; rejected by the sampling diagnostics: "
-              f"{', '.join(choice.rejected) or 'none'})")
-        return 0
-
-    encoders = names(args.encoders) if args.encoders else bench.ENCODERS
-    everything = None
-    if args.encode_all:
-        everything = bench.encode_all()  # first: everything cold
-    with bar:
-        rows = bench.run(encoders, paper=args.paper, progress=progress, **kw)
-    autos = {}
-    for enc in encoders:
-        try:
-            autos[enc] = bench.choose(rows, enc, args.tolerance, args.safety)
-        except ConfigError as err:
-            autos[enc] = err.allowed
-    print(bench.format_table(rows))
-    if args.sweep:
-        print("\nEach knob alone from `default` (cost: learned encoders per training step, fixed per 10,000 digits):")
-        print(bench.format_sweep(rows))
-    print()
-    print(bench.format_outcomes(bench.outcomes(rows, everything, autos)))
-    if args.out:
-        out = Path(args.out)
-        print(bench.write_csv(rows, out / "bench.csv"))
-        print(bench.save_pareto(rows, out / "pareto.png"))
-    return 0
+    return bench_main(args)
 
 
 def cmd_version() -> int:
@@ -406,7 +336,7 @@ def cmd_sweep(args, extra) -> int:
         from .sweep.estimate import estimate
 
         est = estimate(planned)
-        total = sum(e["seconds"] for p, e in zip(planned, est.values()) if p.state != "finished")
+        total = sum(e["seconds"] for p, e in zip(planned, est.values()) if p.state != "finished" and e["seconds"] == e["seconds"])
         for p in planned:
             e = est[p.cell.name]
             print(f"{p.state:11s} {e['seconds']:8.1f} s ({e['source']})  {p.cell.name}")

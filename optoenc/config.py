@@ -255,6 +255,10 @@ def compose(
     except oc_errors.OmegaConfBaseException as err:
         raise ConfigError(getattr(err, "full_key", None) or "config", "?", _message(err)) from None
     names = dict(names or {})
+    for s in _PLUGIN_SECTIONS:  # `--encoder diffuser --encoder.name=lens`: two answers, neither silently wins
+        given = [str(v) for k, v in (o.split("=", 1) for o in overrides or [] if "=" in o) if k.strip() == f"{s}.name"]
+        if names.get(s) and given and given[-1] != str(names[s]):
+            raise ConfigError(f"{s}.name", given[-1], f"conflicts with --{s} {names[s]}; give the {s} once")
     chosen = {s: _names_from(user, names, s) for s in _PLUGIN_SECTIONS}
     classes = {s: get_registry(s).get(chosen[s]) for s in _PLUGIN_SECTIONS}
 

@@ -6,6 +6,7 @@ import fnmatch
 import json
 from typing import Any
 
+from .errors import PluginError
 from .plugins import get_host, get_registry
 from .registry import KINDS
 from .settings import describe, first_line
@@ -73,10 +74,10 @@ def show(kind: str, pattern: str | None = None, as_json: bool = False) -> str:
         head = f"{kind} {pattern} (from {d['source']}{', ' + flags if flags else ''})\n  {d['summary']}\n"
         return head + f"\nSet with --{kind if kind != 'augmentation' else 'augment.' + pattern}.<setting>=<value>\n\n" + _settings_table(d["settings"])
     rows = entries(kind, pattern)
+    if not rows:
+        raise PluginError(f"no {kind} matches {pattern!r}; available: {', '.join(reg.names())}")
     if as_json:
         return json.dumps(rows, indent=2)
-    if not rows:
-        return f"no {kind} matches {pattern!r}; available: {', '.join(reg.names())}"
     w = max(len(r["name"]) for r in rows)
     lines = []
     for r in rows:
