@@ -15,7 +15,7 @@ from optoenc.hookspecs import HOOKS, hookimpl
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
 #: pages written for this test's checks of links and commands (others' pages are checked for being linked)
-OWN_PAGES = ["index.md", "getting-started.md", "plugin-authoring.md"]
+OWN_PAGES = ["index.md", "getting-started.md", "plugin-authoring.md", "architecture.md"]
 
 
 def _read(name: str) -> str:
@@ -86,7 +86,7 @@ def test_index_links_every_page():
     assert pages <= linked, f"docs/index.md does not link {sorted(pages - linked)}"
 
 
-@pytest.mark.parametrize("page", OWN_PAGES + ["../plugins/optoenc-example/README.md"])
+@pytest.mark.parametrize("page", OWN_PAGES + ["../plugins/optoenc-example/README.md", "../plugins/optoenc-zoneplate/README.md"])
 def test_relative_links_resolve(page):
     path = (DOCS / page).resolve()
     for target in re.findall(r"\]\(([^)#:]+)(?:#[^)]*)?\)", path.read_text(encoding="utf-8")):
@@ -150,7 +150,23 @@ def test_plugin_authoring_matches_the_example_plugin():
     assert entry in text and entry in pyproject
     for needle in ("optoenc.testing", "EncoderConformance", "check_encoder", "OPTOENC_STRICT_PLUGINS", "compute_psf", "setting(", "learnable", "linear"):
         assert needle in text, f"docs/plugin-authoring.md should explain {needle}"
-    from optoenc.testing import CHECKS
+    from optoenc.testing import KITS
 
-    missing = [c for c in CHECKS if f"| `{c}` |" not in text]
-    assert not missing, f"conformance checks not described in docs/plugin-authoring.md: {missing}"
+    for kind, kit in KITS.items():  # each kit's table, under its own heading, lists every check of the kit
+        head = f"### `{kind}` kit"
+        assert head in text, f"docs/plugin-authoring.md has no table of the {kind} kit ({head!r})"
+        table = text.split(head, 1)[1].split("\n### ", 1)[0].split("\n## ", 1)[0]
+        missing = [c for c in kit.checks if f"| `{c}` |" not in table]
+        assert not missing, f"{kind} conformance checks not described in docs/plugin-authoring.md: {missing}"
+
+
+def test_plugin_authoring_documents_every_plugin_api():
+    """What a plugin author once had to read the source for is on the page."""
+    text = _read("plugin-authoring.md")
+    for needle in (
+        "in_shape", "num_classes", "learnable_encoder", "flatten = False", "DecoderConfig", "build()",
+        "Splits", "content_digest()", "class_names", "float32", "int64", "[0, 1]", "object_height",
+        "MaskEncoder", "mask()", "phase()", "field_coordinates()", "propagated_psf", "knobs.padding", "psf_oversample",
+        "fidelity_presets", "Augmentation", "n_random",
+    ):
+        assert needle in text, f"docs/plugin-authoring.md should explain {needle!r}"

@@ -95,3 +95,45 @@ def test_a_phase_mask_is_its_phase():
     assert torch.allclose(a.psf(), b.psf(), rtol=1e-10, atol=1e-14)
     with pytest.raises(NotImplementedError, match="mask\\(\\) .* or phase\\(\\)"):
         MaskEncoder.phase(a)
+
+
+# --- the plugin-authoring page's own examples work, as written, and pass their kits ---------------
+def _doc_class(marker: str, name: str):
+    """Run the ```python block of docs/plugin-authoring.md holding ``marker`` and return class ``name``."""
+    import re
+    import sys
+    import types
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "plugin-authoring.md").read_text(encoding="utf-8")
+    (code,) = [b for b in re.findall(r"```python\n(.*?)```", text, re.S) if marker in b]
+    module = types.ModuleType(f"docs_example_{name.lower()}")
+    sys.modules[module.__name__] = module  # dataclasses resolve their module
+    exec(compile(code, f"docs/plugin-authoring.md ({name})", "exec"), module.__dict__)
+    return getattr(module, name)
+
+
+def test_documented_decoder_example_passes_the_decoder_kit():
+    from optoenc.testing import check_decoder
+
+    cls = _doc_class("class SmallCNN(Decoder)", "SmallCNN")
+    assert set(check_decoder(cls, num_classes=3).values()) == {"ok"}
+
+
+def test_documented_dataset_example_passes_the_dataset_kit():
+    from optoenc.testing import check_dataset
+
+    cls = _doc_class("class Bars(Dataset)", "Bars")
+    report = check_dataset(cls, config={"count": 120}, variant={"count": 120, "seed": 1})
+    assert set(report.values()) == {"ok"}
+    splits = cls({"count": 120}).load()
+    assert splits.class_names == ("row", "column") and splits.sizes() == {"train": 80, "val": 20, "test": 20}
+
+
+@pytest.mark.filterwarnings("ignore::optoenc.optics.SamplingWarning")
+def test_documented_mask_example_is_the_zoneplate_plugin_and_conforms():
+    from optoenc.testing import check_encoder
+
+    cls = _doc_class("class ZonePlate(MaskEncoder)", "ZonePlate")
+    report = check_encoder(cls, checks=["documented", "psf", "presets", "linearity"])
+    assert set(report.values()) == {"ok"}
