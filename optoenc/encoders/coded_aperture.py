@@ -77,6 +77,3 @@ class CodedAperture(MaskEncoder):
         """``(H, W)`` amplitude transmittance of the mask on the simulation grid (exact fractional areas)."""
         size = (self.config.feature_size, self.config.feature_size)
         return cell_mask(self.cells.to(self.optics_dtype), size, self.field_grid, self.field_spacing)
-
-    def compute_psf(self) -> torch.Tensor:
-        return self.propagated_psf(self.mask(), self.d2)

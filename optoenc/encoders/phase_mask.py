@@ -195,9 +195,6 @@ class PhaseMask(MaskEncoder):
         opening = rect_aperture(grid, spacing, size, dtype=self.optics_dtype, device=t.device)
         return t * opening
 
-    def compute_psf(self) -> torch.Tensor:
-        return self.propagated_psf(self.mask(), self.d2)
-
 
 class LearnedPhaseMask(PhaseMask):
     """Learned phase plate: heights ``max_height * sigmoid(logit)`` per cell, optionally quantised."""
