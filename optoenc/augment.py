@@ -145,33 +145,45 @@ def _resample_axis(img: torch.Tensor, dim: int, start: torch.Tensor, scale: torc
     return out.transpose(-1, -2) if dim == -1 else out
 
 
-def _uniform(batch: int, lo: Any, hi: Any, device) -> torch.Tensor:
-    """``U[lo, hi]`` per example from torch's global RNG, float64."""
-    return lo + (hi - lo) * torch.rand(batch, device=device).double()
-
-
 class Augmentation(Documented, nn.Module):
     """Base class: a random object-plane transform of a canvas ``(B, C, rows, cols)``.
 
     Subclasses set ``name``, ``Config`` (a :class:`Settings` dataclass, SI
-    units unless its help says otherwise) and implement :meth:`apply`.
+    units unless its help says otherwise), ``n_random`` (how many uniform
+    numbers in ``[0, 1)`` one example's transform consumes) and implement
+    :meth:`apply`, which draws nothing itself: its randomness is the
+    ``(B, n_random)`` tensor ``u``. So a transform can be redrawn every epoch
+    (``u`` fresh from torch's global RNG) or drawn once per example and kept
+    (``u`` stored with the dataset: the paper's protocol,
+    ``trainer.augment_draw=once``).
     """
 
     name: ClassVar[str] = ""
     Config: ClassVar[type] = Settings
+    #: Uniform random numbers per example consumed by :meth:`apply`.
+    n_random: ClassVar[int] = 0
 
     def __init__(self, config: Any = None):
         super().__init__()
         self.config = _coerce(self.Config, config, f"augment.{self.name}")
 
-    def apply(self, canvas: torch.Tensor, geometry: CanvasGeometry, state: ObjectState) -> tuple[torch.Tensor, ObjectState]:
-        """Transform the canvas of objects in ``state``; returns the new canvas and state."""
+    def apply(
+        self, canvas: torch.Tensor, geometry: CanvasGeometry, state: ObjectState, u: torch.Tensor
+    ) -> tuple[torch.Tensor, ObjectState]:
+        """Transform the canvas of objects in ``state`` with the per-example uniforms ``u`` ``(B, n_random)``."""
         raise NotImplementedError
 
-    def forward(self, canvas: torch.Tensor, geometry: CanvasGeometry, object_height: Any = None) -> torch.Tensor:
+    def draw(self, batch: int, device=None) -> torch.Tensor:
+        """``(batch, n_random)`` float64 uniforms from torch's global RNG."""
+        return torch.rand(batch, self.n_random, device=device).double()
+
+    def forward(
+        self, canvas: torch.Tensor, geometry: CanvasGeometry, object_height: Any = None, u: torch.Tensor | None = None
+    ) -> torch.Tensor:
         """Transform a canvas made by :func:`to_canvas` (object centred, of height ``object_height`` m)."""
         state = ObjectState.initial(geometry, canvas.shape[0], object_height, canvas.device)
-        return self.apply(canvas, geometry, state)[0]
+        u = self.draw(canvas.shape[0], canvas.device) if u is None else u.to(canvas.device, torch.float64)
+        return self.apply(canvas, geometry, state, u)[0]
 
 
     def extra_repr(self) -> str:
@@ -179,16 +191,33 @@ class Augmentation(Documented, nn.Module):
 
 
 class Compose(nn.Module):
-    """Several augmentations applied in order, tracking the object between them."""
+    """Several augmentations applied in order, tracking the object between them.
+
+    ``u`` ``(B, n_random)`` holds every augmentation's uniforms side by side, in order.
+    """
 
     def __init__(self, augmentations: Sequence[Augmentation]):
         super().__init__()
         self.augmentations = nn.ModuleList(augmentations)
 
-    def forward(self, canvas: torch.Tensor, geometry: CanvasGeometry, object_height: Any = None) -> torch.Tensor:
+    @property
+    def n_random(self) -> int:
+        return sum(a.n_random for a in self.augmentations)
+
+    def draw(self, batch: int, device=None) -> torch.Tensor:
+        return torch.cat([a.draw(batch, device) for a in self.augmentations], dim=1)
+
+    def forward(
+        self, canvas: torch.Tensor, geometry: CanvasGeometry, object_height: Any = None, u: torch.Tensor | None = None
+    ) -> torch.Tensor:
         state = ObjectState.initial(geometry, canvas.shape[0], object_height, canvas.device)
+        u = self.draw(canvas.shape[0], canvas.device) if u is None else u.to(canvas.device, torch.float64)
+        if u.shape[-1] != self.n_random:
+            raise ConfigError("augmentation draws", tuple(u.shape), f"need {self.n_random} uniforms per example")
+        k = 0
         for aug in self.augmentations:
-            canvas, state = aug.apply(canvas, geometry, state)
+            canvas, state = aug.apply(canvas, geometry, state, u[:, k : k + aug.n_random])
+            k += aug.n_random
         return canvas
 
 
@@ -202,15 +231,15 @@ class Shift(Augmentation):
 
     name = "shift"
     Config = ShiftConfig
+    n_random = 2
 
-    def apply(self, canvas, geometry, state):
+    def apply(self, canvas, geometry, state, u):
         B, new = canvas.shape[0], torch.empty_like(state.center)
         for a, (n, fov) in enumerate(zip(geometry.shape, geometry.fov)):
             half = min(fov / geometry.pitch, n) / 2
             lo = n / 2 - half + state.box[:, a] / 2 + self.config.margin / geometry.pitch
             hi = n / 2 + half - state.box[:, a] / 2 - self.config.margin / geometry.pitch
-            u = _uniform(B, 0.0, 1.0, canvas.device)
-            new[:, a] = torch.where(hi >= lo, lo + u * (hi - lo), state.center[:, a])  # too big: stays
+            new[:, a] = torch.where(hi >= lo, lo + u[:, a] * (hi - lo), state.center[:, a])  # too big: stays
         t, one = new - state.center, torch.ones(B, dtype=torch.float64, device=canvas.device)
         out = _resample_axis(_resample_axis(canvas, -2, t[:, 0], one), -1, t[:, 1], one)
         return out, ObjectState(new, state.box, state.height)
@@ -232,9 +261,10 @@ class Rescale(Augmentation):
 
     name = "rescale"
     Config = RescaleConfig
+    n_random = 1
 
-    def apply(self, canvas, geometry, state):
-        target = _uniform(canvas.shape[0], self.config.min_height, self.config.max_height, canvas.device)
+    def apply(self, canvas, geometry, state, u):
+        target = self.config.min_height + (self.config.max_height - self.config.min_height) * u[:, 0]
         s = target / state.height
         c = state.center
         out = _resample_axis(_resample_axis(canvas, -2, c[:, 0] * (1 - s), s), -1, c[:, 1] * (1 - s), s)
@@ -251,10 +281,11 @@ class Rotate(Augmentation):
 
     name = "rotate"
     Config = RotateConfig
+    n_random = 1
 
-    def apply(self, canvas, geometry, state):
+    def apply(self, canvas, geometry, state, u):
         B, dt = canvas.shape[0], canvas.dtype
-        angle = _uniform(B, -self.config.max_angle, self.config.max_angle, canvas.device)
+        angle = self.config.max_angle * (2 * u[:, 0] - 1)
         center = (state.center.flip(1) - 0.5).to(dt)  # kornia: (x, y), pixel centres at integers
         from kornia.geometry.transform import get_rotation_matrix2d, warp_affine  # lazy: listings stay fast
 
@@ -276,14 +307,15 @@ class Perspective(Augmentation):
 
     name = "perspective"
     Config = PerspectiveConfig
+    n_random = 9  # on/off, then 4 corners x (x, y)
 
-    def apply(self, canvas, geometry, state):
+    def apply(self, canvas, geometry, state, u):
         B, dt, dev = canvas.shape[0], canvas.dtype, canvas.device
         signs = torch.tensor([[1, 1], [-1, 1], [-1, -1], [1, -1]], dtype=torch.float64, device=dev)  # TL TR BR BL
         half = state.box.flip(1)[:, None, :] / 2  # (B, 1, 2) as (x, y)
         src = state.center.flip(1)[:, None, :] - 0.5 - signs * half
-        on = (torch.rand(B, device=dev) < self.config.p).double()[:, None, None]
-        shift = self.config.distortion * half * torch.rand(B, 4, 2, device=dev).double() * signs * on
+        on = (u[:, 0] < self.config.p).double()[:, None, None]
+        shift = self.config.distortion * half * u[:, 1:].reshape(B, 4, 2) * signs * on
         from kornia.geometry.transform import get_perspective_transform, warp_perspective
 
         m = get_perspective_transform(src, src + shift).to(dt)

@@ -63,8 +63,12 @@ class EncoderClassifier(L.LightningModule):
         self.test_acc = MulticlassAccuracy(num_classes=n, average="micro")
 
     # --------------------------------------------------------------- forward
-    def clean_embedding(self, x: torch.Tensor, augment: bool) -> torch.Tensor:
-        """Noise-free embedding of a batch (scenes, or precomputed embeddings)."""
+    def clean_embedding(self, x: torch.Tensor, augment: bool, draws: torch.Tensor | None = None) -> torch.Tensor:
+        """Noise-free embedding of a batch (scenes, or precomputed embeddings).
+
+        ``draws``: the batch's stored augmentation uniforms (``trainer.augment_draw=once``);
+        ``None`` draws fresh ones.
+        """
         if self.precomputed:
             return x
         if len(self.augmentations) and augment:
@@ -72,19 +76,21 @@ class EncoderClassifier(L.LightningModule):
 
             canvas = to_canvas(x, self.canvas)
             # Compose tracks each object's position and size from one transform to the next.
-            canvas = Compose(list(self.augmentations))(canvas, self.canvas, self.encoder.scene_config.object_height)
+            canvas = Compose(list(self.augmentations))(
+                canvas, self.canvas, self.encoder.scene_config.object_height, draws
+            )
             return self.encoder.measure(canvas, height=self.canvas.height)
         return self.encoder.measure(x)
 
-    def forward(self, x: torch.Tensor, augment: bool = False) -> torch.Tensor:
+    def forward(self, x: torch.Tensor, augment: bool = False, draws: torch.Tensor | None = None) -> torch.Tensor:
         """Logits for a batch of scenes (noise included)."""
-        emb = self.encoder.add_sensor_noise(self.clean_embedding(x, augment))
+        emb = self.encoder.add_sensor_noise(self.clean_embedding(x, augment, draws))
         return self.decoder(emb)
 
     # --------------------------------------------------------------- steps
     def _step(self, batch, metric, stage: str, augment: bool) -> torch.Tensor:
-        x, y = batch
-        logits = self(x, augment=augment)
+        x, y = batch[0], batch[1]
+        logits = self(x, augment=augment, draws=batch[2] if len(batch) > 2 else None)
         loss = F.cross_entropy(logits, y)
         metric.update(logits.detach(), y)
         on_step = stage == "train"

@@ -96,14 +96,16 @@ def save_mask(path: str | Path, mask: torch.Tensor, title: str = "mask transmitt
     return _save(plt, fig, path)
 
 
-def save_measurements(path: str | Path, images: torch.Tensor, embeddings: torch.Tensor, labels: Sequence[int]) -> Path:
-    """Scenes and their sensor embeddings side by side (one column per example)."""
+def save_measurements(
+    path: str | Path, images: torch.Tensor, embeddings: torch.Tensor, labels: Sequence[int], class_names: Sequence[str] = ()
+) -> Path:
+    """Scenes and their sensor embeddings side by side (one column per example), titled by class name if given."""
     n = len(embeddings)
     plt, fig = _figure((1.6 * max(n, 1), 3.4))
     for i in range(n):
         ax = fig.add_subplot(2, n, i + 1)
         ax.imshow(images[i, 0].cpu().numpy(), cmap="gray")
-        ax.set_title(f"label {int(labels[i])}", fontsize=8)
+        ax.set_title(class_names[int(labels[i])] if class_names else f"label {int(labels[i])}", fontsize=8)
         ax.axis("off")
         ax = fig.add_subplot(2, n, n + i + 1)
         e = embeddings[i].detach().cpu().float()

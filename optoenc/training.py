@@ -197,7 +197,7 @@ def _pictures(parts: Parts, run: RunConfig, run_dir: Path, tag: str) -> None:
         if n and tag != "initial":
             x, y = parts.splits.test[0][:n], parts.splits.test[1][:n]
             emb = enc.add_sensor_noise(enc.measure(x.to(torch.float32)))
-            pictures.save_measurements(pic / "measurements.png", x, emb, y.tolist())
+            pictures.save_measurements(pic / "measurements.png", x, emb, y.tolist(), parts.splits.class_names)
 
 
 def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> dict[str, Any]:

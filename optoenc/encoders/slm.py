@@ -163,14 +163,15 @@ class LearnedSLM(_SLMBase):
         return self._quantize(torch.sigmoid(self.logits))
 
     def d2_tensor(self) -> torch.Tensor | float:
-        if self.log_d2_scale is None:
+        if getattr(self, "log_d2_scale", None) is None:  # also while the base class initialises
             return float(self.config.d2)
         return self.config.d2 * torch.exp(self.log_d2_scale.to(torch.float64))
 
     @property
     def d2(self) -> float:
         """Current (possibly learned) LCD-to-sensor distance, metres."""
-        return float(self.d2_tensor().detach()) if self.log_d2_scale is not None else float(self.config.d2)
+        d2 = self.d2_tensor()
+        return float(d2.detach()) if isinstance(d2, torch.Tensor) else d2
 
 
 def panel_image(encoder: _SLMBase) -> np.ndarray:

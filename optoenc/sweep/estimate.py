@@ -16,6 +16,7 @@ from typing import Any
 import torch
 
 from ..callbacks import read_metrics
+from ..errors import OptoencError
 from ..rundir import RUN_FILES
 
 __all__ = ["kind_of", "estimate"]
@@ -88,7 +89,11 @@ def estimate(planned, sweep_dir=None) -> dict[str, dict[str, Any]]:
         run = p.run
         epochs = run.trainer.max_epochs
         k = kind_of(run)
-        n_train, n_val, n_test, shape = _sizes(run, sizes)
+        try:
+            n_train, n_val, n_test, shape = _sizes(run, sizes)
+        except OptoencError as err:  # e.g. a cell's dataset is missing: it would fail; say so, go on
+            out[p.cell.name] = {"seconds": float("nan"), "source": f"not estimated: {err}"}
+            continue
         done = len(read_metrics(p.path / RUN_FILES["metrics"])) if p.state != "finished" else epochs
         left = max(0, epochs - done)
         if k in known:

@@ -1,0 +1,60 @@
+"""A real sweep through the CLI: cells run in their own processes; failures are isolated and reported;
+a re-run skips finished cells and re-runs failed ones."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+
+SPEC = """
+name: tiny
+base:
+  dataset: {{train_size: 300, val_size: 100, test_size: 100}}
+  trainer: {{max_epochs: 2, verify_preset: null, test_every_epoch: true, eval_batch_size: 200}}
+  fidelity: {{grid: [48, 64]}}
+  output: {{examples: 0}}
+axes:
+  encoder: [lens]
+  sensor.embedding: [[6, 8]]
+  decoder: [logistic]
+cells:
+  - {{encoder: lens, sensor.embedding: [3, 4], decoder: logistic, dataset.root: "{missing}"}}
+paper:
+  - {{where: {{encoder: lens, sensor.embedding: [6, 8], decoder: logistic}}, acc: 42.8}}
+"""
+
+
+def _sweep(*args):
+    return subprocess.run([sys.executable, "-m", "optoenc.cli", "sweep", *args], capture_output=True, text=True,
+                          timeout=600)
+
+
+def test_sweep_isolates_failures_skips_finished_and_collects(tmp_path):
+    spec = tmp_path / "tiny.yaml"
+    spec.write_text(SPEC.format(missing=tmp_path / "no-mnist-here"))
+    out = tmp_path / "sweep"
+    first = _sweep(str(spec), "--out", str(out), "--workers", "2")
+    assert first.returncode == 1, first.stderr  # one cell failed: non-zero, but the other finished
+    assert "1 cell(s) failed" in first.stderr
+    ok = out / "cells" / "embedding=6x8"
+    bad = next(p for p in (out / "cells").iterdir() if p.name.startswith("embedding=3x4"))
+    assert (ok / "summary.json").is_file()
+    assert json.loads((bad / "status.json").read_text())["state"] == "failed"
+    rows = list(csv.DictReader(open(out / "cells.csv")))
+    by = {r["cell"]: r for r in rows}
+    assert by[ok.name]["state"] == "finished" and by[bad.name]["state"] == "failed"
+    assert by[bad.name]["error"]  # the one-line error, e.g. the missing dataset root
+    # Per-epoch test accuracy gives the paper's best-test column, never below the selected one.
+    assert float(by[ok.name]["best_test_acc"]) >= float(by[ok.name]["test_acc"])
+    summary = list(csv.DictReader(open(out / "summary.csv")))
+    assert summary[0]["paper_acc"] == "42.8" and summary[0]["seeds"] == "1"
+    assert "Failed cells" in (out / "summary.md").read_text()
+    stamp = (ok / "summary.json").stat().st_mtime_ns
+    again = _sweep(str(spec), "--out", str(out))
+    assert again.returncode == 1
+    assert (ok / "summary.json").stat().st_mtime_ns == stamp  # finished: skipped
+    assert "FAILED" in again.stderr and bad.name in again.stderr  # failed: re-run
+    dry = _sweep(str(spec), "--out", str(out), "--dry-run")
+    assert dry.returncode == 0 and "finished" in dry.stdout and "failed" in dry.stdout

@@ -1,0 +1,107 @@
+"""Sweep specs: expansion, cell names, paper figures, errors; cell states on disk."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from optoenc.errors import ConfigError
+from optoenc.sweep import load_spec
+from optoenc.sweep.cells import cell_state, compose_cell
+
+SPEC = """
+name: demo
+base:
+  trainer: {max_epochs: 3}
+  dataset.train_size: 500
+axes:
+  - encoder: [lens, diffuser]
+    sensor.embedding: [[24, 32], [3, 4]]
+    decoder: [fcnn]
+  - encoder: [fixed_slm]
+    sensor.embedding: [[3, 4]]
+    decoder: [fcnn]
+    seed: [1, 2]
+cells:
+  - {encoder: lens, sensor.embedding: [24, 32], decoder: fcnn}
+  - {encoder: lens, sensor.embedding: [6, 8], decoder: logistic, augment: "rotate,shift"}
+paper:
+  - {where: {encoder: lens, sensor.embedding: [24, 32], decoder: fcnn}, acc: 97.7}
+"""
+
+
+@pytest.fixture
+def spec(tmp_path):
+    p = tmp_path / "demo.yaml"
+    p.write_text(SPEC)
+    return load_spec(p)
+
+
+def test_expansion_order_names_and_duplicates(spec):
+    cells = spec.expand()
+    names = [c.name for c in cells]
+    # 4 + 2 from the blocks, the first explicit cell repeats a block cell (dropped), one new explicit cell.
+    assert len(cells) == 7 and len(set(names)) == 7
+    assert names[0] == "encoder=lens,embedding=24x32,decoder=fcnn"
+    assert names[4] == "encoder=fixed_slm,embedding=3x4,decoder=fcnn,seed=1"
+    assert names[-1] == "encoder=lens,embedding=6x8,decoder=logistic,augment=rotate_shift"
+
+
+def test_paper_figure_matches_only_its_cell(spec):
+    cells = spec.expand()
+    assert spec.paper_figure(cells[0]) == 97.7
+    assert all(spec.paper_figure(c) is None for c in cells[1:])
+
+
+def test_cell_config_layers_base_then_cell(spec, tmp_path):
+    cell = spec.expand()[-1]
+    run = compose_cell(spec, cell, tmp_path / "sweep")
+    assert run.names["encoder"] == "lens" and run.names["decoder"] == "logistic"
+    assert run.trainer.max_epochs == 3 and run.dataset.train_size == 500  # nested and dotted base keys
+    assert tuple(run.sensor.embedding) == (6, 8) and sorted(run.augment) == ["rotate", "shift"]
+    assert run.output.name == cell.name and run.trainer.progress is False
+
+
+@pytest.mark.parametrize(
+    "text,key",
+    [
+        ("- a\n- b\n", "sweep spec"),
+        ("nonsense: 1\n", "sweep.nonsense"),
+        ("axes: {encoder: []}\n", "sweep.axes.encoder"),
+        ("paper: [{where: {encoder: lens}}]\n", "sweep.paper[0]"),
+    ],
+)
+def test_bad_specs_name_the_key(tmp_path, text, key):
+    p = tmp_path / "bad.yaml"
+    p.write_text(text)
+    with pytest.raises(ConfigError) as info:
+        load_spec(p)
+    assert info.value.key == key
+
+
+def test_bad_setting_in_a_cell_is_caught_before_anything_runs(tmp_path):
+    from optoenc.sweep import plan
+
+    p = tmp_path / "bad.yaml"
+    p.write_text("axes: {encoder: [lens], trainer.max_epochs: [0]}\n")
+    with pytest.raises(ConfigError, match="max_epochs"):
+        plan(load_spec(p), tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+
+
+def test_cell_states(tmp_path):
+    d = tmp_path / "cell"
+    d.mkdir()
+    assert cell_state(d) == "new"
+    (d / "checkpoints").mkdir()
+    (d / "checkpoints" / "last.ckpt").write_bytes(b"x")
+    assert cell_state(d) == "interrupted"
+    (d / "status.json").write_text(json.dumps({"state": "failed", "error": "boom"}))
+    assert cell_state(d) == "failed"
+    (d / "summary.json").write_text("{}")
+    assert cell_state(d) == "finished"
+    (d / "config.yaml").write_text("seed: 0\ntrainer: {threads: 1, max_epochs: 2}\n")
+    # Thread and progress settings differ per machine: never stale. Anything else is.
+    assert cell_state(d, "seed: 0\ntrainer: {threads: 2, max_epochs: 2}\n") == "finished"
+    assert cell_state(d, "seed: 0\ntrainer: {threads: 1, max_epochs: 3}\n") == "changed"

@@ -1,0 +1,83 @@
+"""The paper's robustness protocol: each example's transform drawn once and kept (trainer.augment_draw=once)."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from optoenc.augment import BUILTIN, Compose, canvas_geometry, to_canvas
+from optoenc.augment_once import draws
+
+GEOM = canvas_geometry(0.12, (28, 28), 0.47, 0.63, min_pitch=0.0)
+AUGS = [cls() for cls in BUILTIN]
+
+
+def test_draws_are_a_fixed_function_of_seed_split_and_index():
+    a = draws(AUGS, 50, seed=3, split="train")
+    assert a.shape == (50, Compose(AUGS).n_random) and float(a.min()) >= 0 and float(a.max()) < 1
+    assert torch.equal(a, draws(AUGS, 50, seed=3, split="train"))
+    assert torch.equal(a[:20], draws(AUGS, 20, seed=3, split="train"))  # index i's draw does not depend on N
+    assert not torch.equal(a, draws(AUGS, 50, seed=4, split="train"))
+    assert not torch.equal(a, draws(AUGS, 50, seed=3, split="test"))
+
+
+def test_an_example_gets_the_same_transform_in_any_batch():
+    g = torch.Generator().manual_seed(0)
+    scenes = torch.rand(3, 1, 28, 28, generator=g)
+    u = draws(AUGS, 3, seed=0, split="train")
+    comp = Compose(AUGS)
+    full = comp(to_canvas(scenes, GEOM), GEOM, 0.12, u)
+    alone = comp(to_canvas(scenes[2:], GEOM), GEOM, 0.12, u[2:])
+    # kornia's warps are per-example: the batch around an example changes nothing but rounding.
+    torch.testing.assert_close(full[2:], alone, rtol=0, atol=1e-6)
+    # Fresh draws (the per-epoch protocol) give another transform.
+    assert (comp(to_canvas(scenes, GEOM), GEOM, 0.12) - full).abs().max() > 1e-3
+
+
+def test_fixed_encoder_once_mode_precomputes_the_transformed_dataset(tmp_path, quick):
+    from optoenc.augment_once import encode_transformed
+    from optoenc.config import compose
+    from optoenc.training import build
+
+    over = quick + [f"trainer.cache_dir={tmp_path}", "trainer.augment_draw=once", "sensor.embedding=[6,8]",
+                    "fidelity.grid=[48,64]"]
+    run = compose(overrides=over, names={"encoder": "lens", "decoder": "logistic"}, augment=["rotate"])
+    parts = build(run)
+    assert parts.precomputed
+    emb = parts.loaders["test"].dataset.tensors[0]
+    x = parts.splits.test[0]
+    u = draws(parts.module.augmentations, len(x), run.seed, "test")
+    expect = encode_transformed(parts.module.encoder, parts.module.augmentations, parts.module.canvas, x, u, 100)
+    torch.testing.assert_close(emb, expect)
+    again = build(compose(overrides=over, names={"encoder": "lens", "decoder": "logistic"}, augment=["rotate"]))
+    assert torch.equal(again.loaders["test"].dataset.tensors[0], emb)  # a cache hit, identical
+    other = build(compose(overrides=over, names={"encoder": "lens", "decoder": "logistic"}, augment=["rotate"],
+                          seed=1))
+    assert not torch.equal(other.loaders["test"].dataset.tensors[0], emb)  # another seed, other transforms
+
+
+def test_learned_encoder_once_mode_carries_the_draws_in_its_batches(quick):
+    from optoenc.config import compose
+    from optoenc.training import build
+
+    over = quick + ["trainer.augment_draw=once", "sensor.embedding=[6,8]", "fidelity.grid=[48,64]"]
+    parts = build(compose(overrides=over, names={"encoder": "learned_slm", "decoder": "logistic"},
+                          augment=["shift"]))
+    x, y, u = next(iter(parts.loaders["val"]))
+    assert u.shape == (len(y), 2)
+    mod = parts.module.eval()
+    with torch.no_grad():
+        a = mod.clean_embedding(x, True, u)
+        b = mod.clean_embedding(x, True, u)
+    torch.testing.assert_close(a, b, rtol=0, atol=0)
+
+
+def test_once_mode_rejects_an_augmentation_without_declared_draws():
+    from optoenc.augment import Augmentation
+    from optoenc.errors import ConfigError
+
+    class Legacy(Augmentation):
+        name = "legacy"
+
+    with pytest.raises(ConfigError, match="n_random"):
+        draws([Legacy()], 4, 0, "train")
