@@ -137,3 +137,16 @@ def test_documented_mask_example_is_the_zoneplate_plugin_and_conforms():
     cls = _doc_class("class ZonePlate(MaskEncoder)", "ZonePlate")
     report = check_encoder(cls, checks=["documented", "psf", "presets", "linearity"])
     assert set(report.values()) == {"ok"}
+
+
+def test_class_names_title_the_measurement_pictures(tmp_path, monkeypatch):
+    from optoenc import pictures
+
+    titles = []
+    real = pictures._save
+    monkeypatch.setattr(pictures, "_save", lambda plt, fig, path: titles.extend(a.get_title() for a in fig.axes) or real(plt, fig, path))
+    x, emb = torch.rand(2, 1, 8, 6), torch.rand(2, 1, 3, 4)
+    pictures.save_measurements(tmp_path / "named.png", x, emb, [1, 0], ("row", "column"))
+    pictures.save_measurements(tmp_path / "numbered.png", x, emb, [1, 0])
+    scene_titles = [t for t in titles if t and not t.startswith("(")]  # the embeddings are titled by their shape
+    assert scene_titles == ["column", "row", "label 1", "label 0"]

@@ -44,8 +44,8 @@ class Splits:
     #: Together with the dataset's ``Config`` it must identify the splits'
     #: content: change it whenever the source data changes.
     digest: str = ""
-    #: Optional name of each class (``class_names[label]``), for pictures and
-    #: listings; empty: the labels' numbers are shown.
+    #: Optional name of each class (``class_names[label]``): the titles of the
+    #: run's measurement pictures; empty: "label N".
     class_names: tuple[str, ...] = ()
 
     def content_digest(self) -> str:
@@ -99,7 +99,13 @@ class Dataset(Documented):
     """Base class: a labelled image dataset loaded into :class:`Splits`.
 
     Subclasses set ``name`` (the registry name), ``Config`` (a dataclass
-    deriving from :class:`DatasetConfig`) and implement :meth:`load`.
+    deriving from :class:`DatasetConfig`), ``num_classes`` and implement
+    :meth:`load`. The contract (docs/plugin-authoring.md, "The dataset"):
+    images float32 ``(N, C, h, w)`` with C 1 or 3, finite, in [0, 1], any
+    ``h, w >= 1`` (placed at ``scene.object_height`` whatever their pixel
+    count); labels int64 in ``[0, num_classes)``; no split empty and no
+    image in two splits; the same config gives the same splits; ``digest``
+    changes with the source data. ``optoenc.testing.check_dataset`` checks it.
 
     Args:
         config: the dataset's ``Config`` (or a mapping of its fields).
@@ -113,7 +119,7 @@ class Dataset(Documented):
         self.config = _coerce(self.Config, config, "dataset")
 
     def load(self) -> Splits:
-        """The train / val / test splits."""
+        """The train / val / test splits (validation carved from the training data), in memory."""
         raise NotImplementedError
 
 
