@@ -103,6 +103,23 @@ def _field_types(cls: type) -> dict[str, tuple[Any, int | None, bool]]:
     return {name: _scalar_type(tp) for name, tp in hints.items()}
 
 
+@functools.lru_cache(maxsize=None)
+def _required(cls: type) -> frozenset[str]:
+    """Fields whose annotation does not admit None (and whose default is not None)."""
+    try:
+        hints = typing.get_type_hints(cls)
+    except Exception:
+        return frozenset()
+    out = set()
+    for f in dataclasses.fields(cls):
+        tp = hints.get(f.name)
+        args = typing.get_args(tp)
+        optional = tp is Any or type(None) in args or tp is type(None)
+        if tp is not None and not optional and f.default is not None:
+            out.add(f.name)
+    return frozenset(out)
+
+
 _TYPE_WORDS = {float: "a number", int: "an integer", bool: "true or false", str: "a string"}
 
 
@@ -150,6 +167,8 @@ def validate(config: Any) -> None:
     for f in dataclasses.fields(config):
         value = getattr(config, f.name)
         if value is None:
+            if f.name in _required(type(config)):
+                raise ConfigError(f.name, None, f"must be set (null is not allowed); {_allowed_text(f.metadata) or 'see its description'}")
             continue
         expected, length, sequence = types.get(f.name, (None, None, False))
         if isinstance(value, (tuple, list)):

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Any, ClassVar, Mapping
 
@@ -19,7 +20,7 @@ import torch
 from torch import nn
 
 from .. import imaging, limits
-from ..errors import ConfigError
+from ..errors import ConfigError, DataError
 from ..geometry import FidelityConfig, Geometry, SceneConfig, SensorConfig
 from ..settings import Documented, Settings, setting
 
@@ -53,6 +54,24 @@ def _coerce(cls: type, value: Any, section: str) -> Any:
         except ConfigError as err:
             raise err.with_prefix(section) from None
     raise ConfigError(section, value, f"must be a {cls.__name__} or a mapping")
+
+
+def _as_intensity(scene: Any) -> torch.Tensor:
+    """A floating-point ``(B, C, h, w)`` scene: integer images scaled by their dtype's maximum, non-finite refused."""
+    if not isinstance(scene, torch.Tensor):
+        raise ConfigError("scene", type(scene).__name__, "must be a torch.Tensor of shape (batch, channels, height, width)")
+    if scene.dim() != 4:
+        raise ConfigError("scene", tuple(scene.shape), "must be a (batch, channels, height, width) tensor")
+    if scene.is_complex():
+        raise ConfigError("scene", str(scene.dtype), "must be real intensities, not complex")
+    if scene.dtype == torch.bool:
+        return scene.to(torch.float32)
+    if not scene.is_floating_point():
+        return scene.to(torch.float32) / float(torch.iinfo(scene.dtype).max)
+    if not bool(torch.isfinite(scene.detach()).all()):
+        bad = int((~torch.isfinite(scene.detach())).sum())
+        raise DataError(f"scene: {bad} pixel(s) are NaN or infinite; intensities must be finite")
+    return scene
 
 
 class OpticalEncoder(Documented, nn.Module, abc.ABC):
@@ -261,18 +280,27 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         """Noise-free embedding of ``(B, C, h, w)`` scenes of physical height ``height`` metres.
 
         Args:
-            scene: non-negative intensities; ``C`` is 1 or the sensor's channels.
-            height: physical height of the scene image (default
-                ``scene.object_height``).
+            scene: non-negative, finite intensities; ``C`` is 1 or the
+                sensor's channels. Integer images are fixed-point intensities
+                in ``[0, max]`` of their dtype and are divided by that maximum
+                (``uint8``: 255, so 255 is full scale 1.0); ``bool`` is 0 / 1.
+            height: physical height of the scene image, a finite number > 0
+                (default ``scene.object_height``).
             method: ``"operator"`` (precomputed scene->embedding matrix),
                 ``"direct"`` (place, FFT-convolve and integrate on the grid)
                 or ``"auto"`` (operator unless it would be too large).
 
         Returns:
-            ``(B, channels, a, b)`` in the scene's dtype.
+            ``(B, channels, a, b)`` in the scene's dtype (``float32`` for integer or bool scenes).
+
+        Raises:
+            DataError: NaN or infinite pixels. ConfigError: a bad shape or ``height``.
         """
-        if scene.dim() != 4:
-            raise ConfigError("scene", tuple(scene.shape), "must be a (batch, channels, height, width) tensor")
+        scene = _as_intensity(scene)
+        if height is not None:
+            if isinstance(height, bool) or not isinstance(height, (int, float)) or not math.isfinite(height) or height <= 0:
+                raise ConfigError("height", height, "must be a finite number > 0 m (the scene's physical height)")
+            self._check_object_size(height)
         h, w = scene.shape[-2:]
         a, b = self.geometry.embedding
         if method == "auto":
