@@ -13,10 +13,12 @@ from typing import Sequence
 
 from . import __version__
 from .errors import ConfigError, Interrupted, OptoencError
+from .registry import KINDS
 
 __all__ = ["main"]
 
-KIND_COMMANDS = {"encoders": "encoder", "decoders": "decoder", "augmentations": "augmentation", "datasets": "dataset"}
+#: Listing command -> plugin kind (`optoenc encoders`, ...), one per kind of :data:`optoenc.registry.KINDS`.
+KIND_COMMANDS = {f"{kind}s": kind for kind in KINDS}
 
 
 def _split_overrides(extra: Sequence[str]) -> list[str]:
