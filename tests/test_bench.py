@@ -18,7 +18,7 @@ from optoenc.geometry import FIDELITY_PRESETS
 # Tiny grids alias the spherical wave: expected here, and recorded by the benchmark in its rows.
 pytestmark = pytest.mark.filterwarnings("ignore::optoenc.optics.diagnostics.SamplingWarning")
 
-TINY = pipeline.Setting("tiny", "paper", (48, 64), "float32", "0.5")
+TINY = pipeline.Setting("tiny", "paper-grid", (48, 64), "float32", "0.5")
 
 
 def _scenes(n=6, seed=0):
@@ -31,15 +31,18 @@ def _scenes(n=6, seed=0):
 
 def test_paper_setting_is_the_papers_grid_with_a_2x_window():
     s = pipeline.paper_setting()
-    assert (s.grid, s.dtype, s.method) == ((380, 507), "float32", "direct")
+    assert (s.grid, s.dtype, s.method) == ((380, 507), "float32", "published")
+    assert pipeline.paper_grid_setting().method == "direct"
     enc = pipeline.build_encoder("fixed_slm", s)
     pad = enc.fidelity_padding()  # per side: a 2x window in each axis
     assert all(2 * p + n >= 2 * n for p, n in zip(pad, s.grid))
 
 
-def test_hifi_is_twice_as_fine_as_every_preset_in_float64():
-    h = pipeline.hifi_setting()
-    assert h.dtype == "float64" and float(h.padding) >= 0.5
+def test_truth_is_the_full_sensor_in_float64():
+    from optoenc.bench.truth import truth_setting
+
+    h = truth_setting()
+    assert h.dtype == "float64" and h.grid == (3040, 4056) and h.padding == "auto"
     for p in FIDELITY_PRESETS.values():
         assert all(hn >= 2 * pn for hn, pn in zip(h.grid, p["grid"]))
 
@@ -109,35 +112,49 @@ def test_sampling_flags_wraparound_without_padding():
     assert pipeline.sampling(pipeline.build_encoder("diffuser", s0), s0) == (True, "")
 
 
-def test_run_tiny_rows():
-    rows = pipeline.run(["learned_slm"], ["fast"], digits=4, sweep=False, hifi_grid=(96, 128),
-                        paper_grid=(48, 64), encode_count=50, steps=1, batch=16)
+@pytest.fixture
+def coarse_truth(monkeypatch):
+    """One Fresnel node per sensor pixel (32 per tiny-grid pixel): a fast truth, accurate enough for plumbing."""
+    from optoenc.bench import truth
+
+    monkeypatch.setattr(truth, "QUADRATURE", 1)
+
+
+def test_run_tiny_rows(tmp_path, coarse_truth):
+    kw = dict(digits=4, sweep=False, truth_grid=(96, 128), paper_grid=(48, 64), encode_count=50, steps=1, batch=16,
+              truth_dir=tmp_path, kernel_check=False)
+    rows = pipeline.run(["learned_slm"], ["fast"], **kw)
     kinds = [r["kind"] for r in rows]
-    assert kinds == ["hifi", "paper", "preset"]
-    hifi, paper, fast = rows
-    assert hifi["error"] == 0 and hifi["psf_s"] > 0
-    for r in (paper, fast):
+    assert kinds == ["truth", "paper", "paper-grid", "preset"]
+    truth, paper, grid, fast = rows
+    assert truth["error"] == 0 and truth["psf_s"] > 0 and truth["method"] == "truth:fresnel-rect"
+    assert all(r["truth_error"] == truth["truth_error"] > 0 for r in rows)  # next to every figure
+    for r in (paper, grid, fast):
         assert 0 < r["error"] < 1 and r["step_s"] > 0 and r["encode_s"] is None and r["cost_s"] == r["step_s"]
     assert math.isclose(fast["step_speedup"], paper["step_s"] / fast["step_s"])
-    assert "learned_slm" in format_table(rows)
+    assert "learned_slm" in format_table(rows) and "paper-grid" in format_table(rows)
+    assert len(list(tmp_path.glob("learned_slm-*.pt"))) == 1  # the truth is kept: a re-run reads it
+    again = pipeline.run(["learned_slm"], ["fast"], **{**kw, "paper": False})
+    assert again[0]["truth_error"] == truth["truth_error"] and again[1]["error"] == pytest.approx(fast["error"])
 
 
 # ----------------------------------------------------------------------------- auto
 
 
 def _row(setting, error, cost, kind="sweep", ok=True, wavelengths=3, grid=(192, 256), dtype="float32",
-         padding="auto", encoder="learned_slm"):
+         padding="auto", encoder="learned_slm", oversample=1):
     return {
         "encoder": encoder, "setting": setting, "kind": kind, "knob": "", "value": "", "grid": grid,
-        "dtype": dtype, "padding": padding, "wavelengths": wavelengths, "method": "operator", "learnable": True,
-        "error": error, "step_s": cost, "encode_s": None, "encode_estimated": False, "psf_s": None,
-        "cost_s": cost, "step_speedup": None, "encode_speedup": None, "sampling_ok": ok,
+        "dtype": dtype, "padding": padding, "psf_oversample": oversample, "wavelengths": wavelengths,
+        "method": "truth:fresnel-rect" if kind == "truth" else "operator", "learnable": True,
+        "error": error, "truth_error": 0.0004, "step_s": cost, "encode_s": None, "encode_estimated": False,
+        "psf_s": None, "cost_s": cost, "step_speedup": None, "encode_speedup": None, "sampling_ok": ok,
         "sampling": "" if ok else "wraparound",
     }  # fmt: skip
 
 
 FAKE = [
-    _row("hifi", 0.0, 30.0, kind="hifi", grid=(1536, 2048), dtype="float64", padding="1.0"),
+    _row("truth", 0.0, 30.0, kind="truth", grid=(3040, 4056), dtype="float64"),
     _row("paper", 0.002, 0.001, kind="paper", grid=(380, 507), padding="0.5"),  # excluded: not the default path
     _row("fast", 0.03, 0.02, kind="preset"),  # cheapest, too inaccurate
     _row("padding=0", 0.004, 0.025, ok=False, grid=(384, 512), padding="0"),  # meets it, but wraps around
@@ -164,6 +181,22 @@ def test_auto_picks_the_cheapest_reliable_setting_meeting_the_tolerance():
         choose(FAKE, "lens", 0.01)
 
 
+def test_auto_keeps_the_measured_psf_oversample():
+    # A measured 3x-oversampled sweep point is the cheapest within 1 %: auto must return exactly it
+    # (the old rebuild from grid, dtype and padding dropped psf_oversample: an unmeasured setting).
+    rows = [_row("fast", 0.03, 0.02, kind="preset"), _row("psf_oversample=3", 0.008, 0.03, oversample=3)]
+    c = choose(rows, "learned_slm", 0.01)
+    assert c.row["setting"] == "psf_oversample=3" and c.fidelity.resolved()["psf_oversample"] == 3
+
+
+def test_csv_round_trips_psf_oversample(tmp_path):
+    rows = [_row("psf_oversample=3", 0.008, 0.03, oversample=3)]
+    back = read_csv(write_csv(rows, tmp_path / "b.csv"))
+    assert back[0]["psf_oversample"] == 3 and back[0]["truth_error"] == 0.0004
+    assert choose(back, "learned_slm", 0.01).fidelity.resolved()["psf_oversample"] == 3
+
+
+
 def test_auto_from_csv_and_cli(tmp_path, capsys):
     path = write_csv(FAKE, tmp_path / "bench.csv")
     back = read_csv(path)
@@ -178,7 +211,9 @@ def test_auto_from_csv_and_cli(tmp_path, capsys):
 def test_outcomes_and_tables_render():
     rows = [dict(r) for r in FAKE]
     text = format_outcomes(outcomes(rows, auto={"learned_slm": choose(rows, "learned_slm", 0.01)}))
-    assert "[ok]" in text and "reference within 0.5%" in text and "fast error" in text
+    assert "[FAIL] learned_slm: reference within 0.25% of the truth (0.300%" in text
+    assert "[FAIL] learned_slm: default within 1% of the truth (2.000%" in text
+    assert "truth fresnel-rect, estimated error 0.040%" in text and "fast error" in text
     assert "grid=576x768" not in format_table(rows)  # sweep points go to the sweep table
     assert "0.900%" in format_sweep(rows) and "0.45" in format_sweep(rows)  # its error, and x default
 
@@ -187,23 +222,26 @@ def test_outcomes_and_tables_render():
 
 
 def test_cli_bench_tiny(tmp_path, capsys):
-    rc = main(["bench", "--encoders", "diffuser", "--presets", "fast", "--digits", "8", "--hifi-grid", "96x128",
-               "--paper-grid", "48x64", "--encode-count", "100", "--no-sweep", "--no-encode-all",
+    rc = main(["bench", "--encoders", "diffuser", "--presets", "fast", "--digits", "8", "--truth-grid", "96x128",
+               "--paper-grid", "48x64", "--encode-count", "100", "--no-sweep", "--no-encode-all", "--no-speed",
                "--out", str(tmp_path)])
     assert rc == 0
     out = capsys.readouterr().out
-    for word in ("diffuser", "hifi", "paper", "fast", "error vs hi-fi", "auto diffuser"):
+    for word in ("diffuser", "truth", "measured", "paper-grid", "fast", "error vs truth", "truth err", "auto diffuser",
+                 "load average (start)", "load average (end)"):
         assert word in out
     assert (tmp_path / "bench.csv").stat().st_size > 0
     assert (tmp_path / "pareto.png").read_bytes()[:4] == b"\x89PNG"
-    assert [r["kind"] for r in read_csv(tmp_path / "bench.csv")] == ["hifi", "paper", "preset"]
+    back = read_csv(tmp_path / "bench.csv")
+    assert [r["kind"] for r in back] == ["truth", "paper", "paper-grid", "preset"]
+    assert all(r["psf_oversample"] == 1 and r["truth_error"] is not None for r in back)
 
 
 def test_cli_bench_bad_input(capsys):
-    assert main(["bench", "--hifi-grid", "12by3"]) == 2
+    assert main(["bench", "--truth-grid", "12by3"]) == 2
     assert main(["bench", "auto"]) == 2
     err = capsys.readouterr().err
-    assert "--hifi-grid" in err and "--encoder" in err
+    assert "--truth-grid" in err and "--encoder" in err
 
 
 @pytest.mark.slow

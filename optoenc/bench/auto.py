@@ -3,7 +3,7 @@
 The candidates are an encoder's measured presets and single-knob sweep points
 (:func:`optoenc.bench.pipeline.run`): settings a :class:`FidelityConfig`
 can express, on optoenc's default (operator) path. Rejected before choosing:
-the paper pipeline and the hi-fi reference (not candidates), the
+the paper pipelines and the truth (not candidates), the
 one-wavelength point (not a fidelity knob), and every setting whose optics
 sampling diagnostics found a problem (wrap-around, band limit, aliased
 source or mask phase): its measured error may be right by luck and cannot be
@@ -46,14 +46,19 @@ class AutoChoice:
         grid = "x".join(str(int(n)) for n in r["grid"])
         cost = f"{1e3 * r['step_s']:.1f} ms per training step" if r["learnable"] else (
             f"{r['encode_s']:.2f} s to encode 10,000 digits (cold)")
-        return (f"{r['setting']} (grid {grid}, {r['dtype']}, padding {r['padding']}): "
-                f"error {100 * r['error']:.3f}% vs hi-fi, {cost}")
+        return (f"{r['setting']} (grid {grid}, {r['dtype']}, padding {r['padding']}, "
+                f"psf_oversample {r.get('psf_oversample', 1)}): error {100 * r['error']:.3f}% vs the truth, {cost}")
 
 
 def _fidelity(row: dict) -> FidelityConfig:
-    if row["kind"] == "preset" and row["setting"] in FIDELITY_PRESETS:
-        return FidelityConfig(preset=row["setting"])
-    return FidelityConfig(grid=tuple(int(n) for n in row["grid"]), dtype=row["dtype"], padding=str(row["padding"]))
+    """The measured setting of ``row``, every knob explicit (``psf_oversample`` included): what was measured."""
+    return FidelityConfig(
+        preset=row["setting"] if row["kind"] == "preset" and row["setting"] in FIDELITY_PRESETS else "default",
+        grid=tuple(int(n) for n in row["grid"]),
+        dtype=row["dtype"],
+        padding=str(row["padding"]),
+        psf_oversample=int(row.get("psf_oversample") or 1),
+    )
 
 
 def candidates(rows: Sequence[dict], encoder: str) -> tuple[list[dict], list[str]]:
@@ -120,7 +125,7 @@ def auto_fidelity(encoder_name: str, tolerance: float = 0.01, measurements=None,
     Args:
         encoder_name: registry name.
         tolerance: largest relative L2 error of the embeddings against the
-            hi-fi reference (0.01 = 1 %).
+            converged truth (0.01 = 1 %).
         measurements: rows of :func:`optoenc.bench.pipeline.run`, or the path
             of a CSV written by ``optoenc bench --out``; ``None`` measures
             now (presets and the sweep, no paper pipeline; ``run_kwargs`` go

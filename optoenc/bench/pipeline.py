@@ -2,31 +2,31 @@
 
 What is measured (``optoenc bench``), for each encoder:
 
-* ``hifi``: the high-fidelity reference for error: the same encoder class on
-  a grid at least 2x finer than the finest preset in each axis (1536 x 2048),
-  float64, padding ``1.0`` (3x window), three wavelengths, the same
-  continuous scene (every grid samples the same piecewise-constant digit of
-  physical size: :func:`optoenc.imaging.place`). Its embeddings are computed
-  once, with the exact scene operator.
-* ``paper``: the speed reference, the paper's pipeline: the paper's grid
-  (380 x 507), float32, three wavelengths, the PSF recomputed with the
-  band-limited angular spectrum at 2x padding (``padding="0.5"`` per side)
-  at every training step (mask encoders), and a per-example FFT convolution
-  of the digit on that grid followed by box integration
-  (``encoder.measure(method="direct")``). Documented differences from the
-  authors' code: the digit is placed with optoenc's exact area placement
-  (not a bilinear resize to ``round(H_pixel)`` px), the pixel integration is
-  the exact box average (not a bilinear resize), and the convolution is
-  batched over the examples (the same FLOPs as one FFT per example) with the
-  transfer function cached across steps (which favours the paper).
+* ``truth``: the error reference, computed independently of the encoders'
+  wave-field simulation where possible (:mod:`optoenc.bench.truth`): for
+  piecewise-constant amplitude masks (LCD, MLS) the pixel-integrated Fresnel
+  integrals of each rectangle, no grid in the field; the lens's analytic
+  PSF; a measured PSF file resampled exactly; for other masks the encoder's
+  own simulation on the full sensor grid and its halvings, Richardson
+  extrapolated. Every row carries the truth's own estimated error
+  (``truth_error``).
+* ``paper``: the paper's pipeline as published (:mod:`optoenc.bench.published`):
+  the PSF recomputed at every step on the paper's 380 x 507 grid (float32,
+  BLAS with a 2x window, three wavelengths normalised together), the digit
+  resized bilinearly to ``round(H_pixel)`` px, a per-example FFT convolution
+  at 759 x 1013, bilinear downsampling to the embedding without
+  antialiasing. The speed reference.
+* ``paper-grid``: the paper's grid, padding and per-step PSF with optoenc's
+  exact placement and box integration (``encoder.measure(method="direct")``,
+  batched FFT): what the grid alone costs in accuracy.
 * each preset (``reference``, ``default``, ``fast``) on optoenc's default path
   (the exact scene operator, ``method="operator"``);
 * a sweep of each knob alone from the ``default`` preset: ``grid``,
-  ``padding`` (mask encoders), ``dtype``, and ``wavelengths`` (mask
-  encoders: one wavelength, 550 nm, instead of three; not a fidelity knob,
-  so never chosen by :mod:`optoenc.bench.auto`).
+  ``padding`` (mask encoders), ``dtype``, ``psf_oversample`` and
+  ``wavelengths`` (mask encoders: one wavelength, 550 nm, instead of three;
+  not a fidelity knob, so never chosen by :mod:`optoenc.bench.auto`).
 
-Per setting: the relative L2 error ``||E - E_hifi|| / ||E_hifi||`` of the
+Per setting: the relative L2 error ``||E - E_truth|| / ||E_truth||`` of the
 noise-free embeddings of the same test digits (learned encoders at their
 seeded initial parameters, the same seed at every fidelity); the best
 (least contended) time of a training step (batch 200, FCNN decoder, forward + backward +
@@ -43,11 +43,14 @@ renders them. Nothing is printed here.
 from __future__ import annotations
 
 import gc
+import hashlib
+import io
 import math
 import tempfile
 import time
 import warnings
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Callable, Optional, Sequence
 
 import torch
@@ -58,19 +61,19 @@ from ..errors import ConfigError
 from ..settings import to_dict
 from ..geometry import FIDELITY_PRESETS, FidelityConfig
 from ..loaders import encode
-from ..optics import clear_cache, intensity_psf, sampling_report
+from ..optics import clear_cache, sampling_report
+from ..rundir import atomic_write_bytes
 
 __all__ = [
     "ENCODERS",
     "PRESETS",
     "PAPER_GRID",
     "PAPER_PADDING",
-    "HIFI_GRID",
-    "HIFI_PADDING",
+    "TRUTH_GRID",
     "Setting",
     "preset_setting",
     "paper_setting",
-    "hifi_setting",
+    "paper_grid_setting",
     "sweep_settings",
     "plan",
     "build_encoder",
@@ -89,9 +92,10 @@ PRESETS = tuple(FIDELITY_PRESETS)
 #: The paper's simulation grid (sensor / 8) and its 2x propagation window (0.5 per side).
 PAPER_GRID = (380, 507)
 PAPER_PADDING = "0.5"
-#: High-fidelity reference: 2x the finest preset (768 x 1024) in each axis, float64, 3x window.
-HIFI_GRID = (1536, 2048)
-HIFI_PADDING = "1.0"
+#: The truth's finest grid: the full sensor.
+TRUTH_GRID = tuple(devices.IMX477_RESOLUTION)
+#: Version of the kept truth files (``truth_dir``).
+TRUTH_FORMAT = 1
 #: Sweep points, each knob alone from the ``default`` preset.
 SWEEP_GRIDS = ((96, 128), (192, 256), (288, 384), (380, 507), (576, 768), (768, 1024))
 SWEEP_PADDINGS = ("0", "0.25", "0.5", "1.0")
@@ -115,11 +119,12 @@ class Setting:
 
     Attributes:
         label: name in the tables (``"default"``, ``"paper"``, ``"grid=192x256"``).
-        kind: ``"hifi"``, ``"paper"``, ``"preset"`` or ``"sweep"``.
+        kind: ``"truth"``, ``"paper"`` (as published), ``"paper-grid"``, ``"preset"`` or ``"sweep"``.
         grid, dtype, padding: the fidelity knobs.
         preset: the preset name (presets only).
         knob, value: the swept knob and its value (sweep points only).
         wavelengths: 3 (the spectral model) or 1 (550 nm only, mask encoders).
+        oversample: ``psf_oversample``.
     """
 
     label: str
@@ -135,8 +140,8 @@ class Setting:
 
     @property
     def method(self) -> str:
-        """Imaging path: the paper's per-example FFT convolution, else the exact scene operator."""
-        return "direct" if self.kind == "paper" else "operator"
+        """Imaging path: ``published`` (the paper's), ``direct`` (paper-grid) or the exact scene ``operator``."""
+        return {"paper": "published", "paper-grid": "direct"}.get(self.kind, "operator")
 
     def fidelity(self) -> FidelityConfig:
         """The :class:`FidelityConfig` of this setting (explicit knobs; a preset's name kept)."""
@@ -161,19 +166,13 @@ def preset_setting(name: str, encoder_name: str | None = None) -> Setting:
 
 
 def paper_setting(grid=PAPER_GRID, padding: str = PAPER_PADDING) -> Setting:
-    """The paper pipeline's setting: its grid, float32, 2x padding, per-example FFT convolution."""
+    """The published paper pipeline's setting: its grid, float32, 2x padding (:mod:`optoenc.bench.published`)."""
     return Setting("paper", "paper", tuple(grid), "float32", str(padding))
 
 
-def hifi_setting(grid=HIFI_GRID, padding: str = HIFI_PADDING, oversample: int = 1) -> Setting:
-    """The high-fidelity reference's setting (float64).
-
-    ``oversample``: at least the finest PSF oversampling of the encoder's
-    presets, so the reference is never coarser in any knob (with ``auto``
-    padding then, which is wrap-around free by construction: a 3x window at
-    3x oversampling would not fit in memory).
-    """
-    return Setting("hifi", "hifi", tuple(grid), "float64", "auto" if oversample > 1 else str(padding), oversample=oversample)
+def paper_grid_setting(grid=PAPER_GRID, padding: str = PAPER_PADDING) -> Setting:
+    """The paper's grid, padding and per-step PSF with optoenc's exact placement and box integration."""
+    return Setting("paper-grid", "paper-grid", tuple(grid), "float32", str(padding))
 
 
 def _is_mask_encoder(cls) -> bool:
@@ -250,7 +249,17 @@ def paper_forward(enc, scene: torch.Tensor, recompute_psf: bool = True, noise: b
 
 @torch.no_grad()
 def embed(enc, images: torch.Tensor, method: str = "operator", chunk: int = 64) -> torch.Tensor:
-    """Noise-free float64 embeddings of ``images`` (eval mode)."""
+    """Noise-free float64 embeddings of ``images`` (eval mode); ``method="published"``: the paper's pipeline."""
+    if method == "published":
+        from .published import published_forward
+
+        was = enc.training
+        enc.eval()
+        try:
+            return torch.cat([published_forward(enc, images[i : i + chunk], noise=False, recompute_psf=False).double()
+                              for i in range(0, len(images), chunk)])
+        finally:
+            enc.train(was)
     step = max(len(images), 1) if method == "operator" else chunk
     return encode(enc, images.to(torch.float64), step, method=method).double()
 
@@ -318,18 +327,22 @@ def _best_time(fn: Callable[[], None], warmup: int, repeats: int, budget_s: floa
     return min(times)
 
 
-def _train_step(enc, images: torch.Tensor, labels: torch.Tensor, paper: bool, seed: int) -> Callable[[], None]:
-    """One optimiser step of encoder + FCNN (batch ``images``), on the paper's or optoenc's path."""
+def _train_step(enc, images: torch.Tensor, labels: torch.Tensor, method: str, seed: int,
+                num_classes: int = 10) -> Callable[[], None]:
+    """One optimiser step of encoder + FCNN (batch ``images``) on the path ``method`` (a :attr:`Setting.method`)."""
     from ..decoders import FCNN
+    from .published import published_forward
 
     torch.manual_seed(seed)
-    dec = FCNN(in_shape=enc.output_shape, learnable_encoder=enc.learnable)
+    dec = FCNN(in_shape=enc.output_shape, num_classes=num_classes, learnable_encoder=enc.learnable)
     opt = torch.optim.Adam(list(enc.parameters()) + list(dec.parameters()), lr=1e-3)
     enc.train()
     dec.train()
 
     def step() -> None:
-        if paper:
+        if method == "published":
+            emb = published_forward(enc, images)
+        elif method == "direct":
             emb = paper_forward(enc, images)
         else:
             emb = enc(images)  # the default path: scene operator + noise
@@ -352,13 +365,19 @@ class _Data:
     encode: torch.Tensor
 
 
-def _data(digits: int, batch: int, encode_count: int) -> _Data:
-    from ..datasets.mnist import MNIST
+    num_classes: int = 10
 
-    s = MNIST().load()
+
+def _data(digits: int, batch: int, encode_count: int, splits=None) -> _Data:
+    """The scenes measured: ``splits`` (a :class:`optoenc.datasets.Splits`, e.g. a run's dataset) or MNIST's."""
+    if splits is None:
+        from ..datasets.mnist import MNIST
+
+        splits = MNIST().load()
+    s = splits
     test_x, train_x, train_y = s.test[0], s.train[0], s.train[1]
     pool = torch.cat([test_x, train_x]) if encode_count > len(test_x) else test_x
-    return _Data(test_x[:digits], train_x[:batch], train_y[:batch], pool[:encode_count])
+    return _Data(test_x[:digits], train_x[:batch], train_y[:batch], pool[:encode_count], int(s.num_classes))
 
 
 def _free() -> None:
@@ -377,6 +396,7 @@ def _row(name: str, cls, s: Setting, method: str) -> dict:
         "dtype": s.dtype,
         "padding": s.padding,
         "wavelengths": s.wavelengths,
+        "psf_oversample": int(s.oversample),
         "method": method,
         "learnable": bool(cls.learnable),
         "error": None,
@@ -389,29 +409,49 @@ def _row(name: str, cls, s: Setting, method: str) -> dict:
         "encode_speedup": None,
         "sampling_ok": True,
         "sampling": "",
+        "truth_error": None,
     }
+
+
+def _truth_row(name: str, s: Setting, data: _Data, embedding, setup: Optional[dict], truth_dir,
+               kernel_check: bool) -> tuple[dict, torch.Tensor]:
+    from .truth import Truth, truth
+
+    cls = _encoder_class(name)
+    row = _row(name, cls, s, "truth")
+    path = None
+    if truth_dir is not None:  # resumable: the truth of this encoder, setup, scenes and grid, once
+        key = hashlib.sha256(repr((TRUTH_FORMAT, name, setup and {k: to_dict(v) if not isinstance(v, dict) else v
+                                                                      for k, v in setup.items()},
+                                   tuple(embedding), tuple(s.grid), kernel_check)).encode()
+                             + data.digits.double().numpy().tobytes()).hexdigest()[:16]
+        path = Path(truth_dir) / f"{name}-{key}.pt"
+    t = None
+    if path is not None and path.is_file():
+        try:
+            t = Truth(**torch.load(path, weights_only=False))
+        except Exception:  # a damaged file is recomputed
+            t = None
+    if t is None:
+        t = truth(name, data.digits, tuple(embedding), setup, tuple(s.grid), kernel_check=kernel_check)
+        if path is not None:
+            buf = io.BytesIO()
+            torch.save(dict(vars(t)), buf)
+            atomic_write_bytes(path, buf.getvalue())
+    row.update(error=0.0, psf_s=t.seconds, truth_error=t.error, method=f"truth:{t.method}")
+    return row, t.embeddings
 
 
 def _measure(name: str, s: Setting, data: _Data, ref: Optional[torch.Tensor], embedding, steps: int,
              paper_steps: int, seed: int, setup: Optional[dict] = None) -> tuple[dict, Optional[torch.Tensor]]:
     cls = _encoder_class(name)
     row = _row(name, cls, s, s.method)
-    paper = s.kind == "paper"
+    paper = s.kind in ("paper", "paper-grid")
     _free()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # sampling warnings go into the row instead
         t0 = time.perf_counter()
         enc = build_encoder(name, s, embedding, setup)
-        if s.kind == "hifi":
-            with torch.no_grad():
-                enc.psf()
-            row["psf_s"] = time.perf_counter() - t0
-            e = embed(enc, data.digits, "operator")
-            row["error"] = 0.0
-            row["sampling_ok"], row["sampling"] = sampling(enc, s)
-            del enc
-            _free()
-            return row, e
         if not cls.learnable and not paper:
             # Cold: fresh encoder, transfer-function cache cleared; PSF + operator + encoding.
             encode(enc, data.encode)
@@ -431,7 +471,7 @@ def _measure(name: str, s: Setting, data: _Data, ref: Optional[torch.Tensor], em
             row["encode_estimated"] = True
         row["error"] = relative_error(e, ref) if ref is not None else None
         row["sampling_ok"], row["sampling"] = sampling(enc, s)
-        step = _train_step(enc, data.batch, data.labels, paper, seed)
+        step = _train_step(enc, data.batch, data.labels, s.method, seed, data.num_classes)
         if paper:
             row["step_s"] = _best_time(step, warmup=1 if cls.learnable else 0, repeats=paper_steps, budget_s=math.inf)
         else:
@@ -443,21 +483,22 @@ def _measure(name: str, s: Setting, data: _Data, ref: Optional[torch.Tensor], em
 
 
 def plan(encoders=ENCODERS, presets=PRESETS, *, sweep: bool = True, paper: bool = True,
-         hifi_grid=HIFI_GRID, hifi_padding: str = HIFI_PADDING, paper_grid=PAPER_GRID,
-         paper_padding: str = PAPER_PADDING) -> list[tuple[str, Setting]]:
-    """The ``(encoder, setting)`` units :func:`run` measures, in order (each encoder's hi-fi first)."""
+         truth_grid=TRUTH_GRID, paper_grid=PAPER_GRID, paper_padding: str = PAPER_PADDING) -> list[tuple[str, Setting]]:
+    """The ``(encoder, setting)`` units :func:`run` measures, in order (each encoder's truth first)."""
+    from .truth import truth_setting
+
     units = []
     for name in encoders:
         _encoder_class(name)  # unknown names fail before any work
-        finest = max(preset_setting(p, name).oversample for p in FIDELITY_PRESETS)
-        units.append((name, hifi_setting(hifi_grid, hifi_padding, finest)))
+        units.append((name, truth_setting(truth_grid)))
         if paper:
             units.append((name, paper_setting(paper_grid, paper_padding)))
+            units.append((name, paper_grid_setting(paper_grid, paper_padding)))
         units += [(name, preset_setting(p, name)) for p in presets]
         if sweep:
-            have = {(u.grid, u.dtype, u.padding, u.wavelengths, u.oversample) for n, u in units if n == name and u.kind != "paper"}
-            units += [(name, u) for u in sweep_settings(name)
-                      if (u.grid, u.dtype, u.padding, u.wavelengths, u.oversample) not in have]
+            key = lambda u: (u.grid, u.dtype, str(u.padding), u.wavelengths, u.oversample)  # noqa: E731
+            have = {key(u) for n, u in units if n == name and u.kind in ("preset", "sweep")}
+            units += [(name, u) for u in sweep_settings(name) if key(u) not in have]
     return units
 
 
@@ -468,8 +509,7 @@ def run(
     digits: int = DIGITS,
     sweep: bool = True,
     paper: bool = True,
-    hifi_grid=HIFI_GRID,
-    hifi_padding: str = HIFI_PADDING,
+    truth_grid=TRUTH_GRID,
     paper_grid=PAPER_GRID,
     paper_padding: str = PAPER_PADDING,
     embedding=EMBEDDING,
@@ -480,57 +520,71 @@ def run(
     seed: int = 0,
     progress: Optional[Callable[[int, int, str], None]] = None,
     setups: Optional[dict] = None,
+    splits=None,
+    truth_dir=None,
+    kernel_check: bool = True,
 ) -> list[dict]:
     """Measure every ``(encoder, setting)`` of :func:`plan`.
 
     Args:
         encoders: registry names.
         presets: fidelity presets measured on the default (operator) path.
-        digits: MNIST test digits the embedding error is measured on.
+        digits: test scenes the embedding error is measured on.
         sweep: also sweep each knob alone from ``default``.
-        paper: also run the paper pipeline.
-        hifi_grid, hifi_padding: the high-fidelity reference (float64).
+        paper: also run the paper pipeline (``paper``, as published, and ``paper-grid``).
+        truth_grid: the truth's finest grid (:mod:`optoenc.bench.truth`; default the full sensor).
         paper_grid, paper_padding: the paper pipeline's grid and padding.
         embedding: ``(a, b)`` embedding.
         batch: training batch (FCNN decoder, Adam).
-        encode_count: digits encoded for the fixed encoders' encode time.
+        encode_count: scenes encoded for the fixed encoders' encode time.
         steps: timed training steps per setting (the best is kept; fewer once 3 s are spent).
-        paper_steps: timed steps of the paper pipeline (the best is kept; after one warm-up step for
+        paper_steps: timed steps of the paper pipelines (the best is kept; after one warm-up step for
             learned encoders).
         seed: seed of the decoder (the encoders use their configured seeds).
         setups: per encoder name, the ``setup`` of :func:`build_encoder` (its own settings, scene, sensor).
+        splits: the scenes (a :class:`optoenc.datasets.Splits`, e.g. a run's own dataset); default MNIST.
+        truth_dir: folder keeping each truth once computed (resumable runs); None: not kept.
+        kernel_check: add the Fresnel-vs-exact-kernel term to the Fresnel truth's error (about a minute).
         progress: called as ``progress(done, total, description)`` before each unit.
 
     Returns:
-        One dict per unit: ``encoder``, ``setting``, ``kind`` (hifi, paper,
-        preset, sweep), ``knob``, ``value``, ``grid``, ``dtype``,
-        ``padding``, ``wavelengths``, ``method``, ``learnable``, ``error``
-        (relative L2 vs hi-fi), ``step_s``, ``encode_s`` (fixed encoders;
-        ``encode_estimated`` for the paper, scaled from the test digits),
-        ``psf_s``, ``cost_s`` (step time for learned encoders, encode time for
-        fixed ones), ``step_speedup`` / ``encode_speedup`` (paper / this),
-        ``sampling_ok`` and ``sampling`` (the problems found).
+        One dict per unit: ``encoder``, ``setting``, ``kind`` (truth, paper,
+        paper-grid, preset, sweep), ``knob``, ``value``, ``grid``, ``dtype``,
+        ``padding``, ``wavelengths``, ``psf_oversample``, ``method``,
+        ``learnable``, ``error`` (relative L2 vs the truth), ``truth_error``
+        (the truth's own estimated error, on every row), ``step_s``,
+        ``encode_s`` (fixed encoders; ``encode_estimated`` for the paper
+        pipelines, scaled from the test scenes), ``psf_s``, ``cost_s`` (step
+        time for learned encoders, encode time for fixed ones),
+        ``step_speedup`` / ``encode_speedup`` (the published paper pipeline
+        / this), ``sampling_ok`` and ``sampling`` (the problems found).
     """
-    units = plan(encoders, presets, sweep=sweep, paper=paper, hifi_grid=hifi_grid, hifi_padding=hifi_padding,
-                 paper_grid=paper_grid, paper_padding=paper_padding)
-    data = _data(digits, batch, encode_count)
+    units = plan(encoders, presets, sweep=sweep, paper=paper, truth_grid=truth_grid, paper_grid=paper_grid,
+                 paper_padding=paper_padding)
+    data = _data(digits, batch, encode_count, splits)
     rows: list[dict] = []
     refs: dict[str, torch.Tensor] = {}
     for i, (name, s) in enumerate(units):
         if progress is not None:
             progress(i, len(units), f"{name} {s.label}")
-        row, e = _measure(name, s, data, refs.get(name), embedding, steps, paper_steps, seed, (setups or {}).get(name))
-        if e is not None:
-            refs[name] = e
+        setup = (setups or {}).get(name)
+        if s.kind == "truth":
+            _free()
+            row, refs[name] = _truth_row(name, s, data, embedding, setup, truth_dir, kernel_check)
+            _free()
+        else:
+            row, _ = _measure(name, s, data, refs.get(name), embedding, steps, paper_steps, seed, setup)
         rows.append(row)
     if progress is not None:
         progress(len(units), len(units), "done")
     for name in encoders:
+        truth_row = next(r for r in rows if r["encoder"] == name and r["kind"] == "truth")
         ref = next((r for r in rows if r["encoder"] == name and r["kind"] == "paper"), None)
-        if ref is None:
-            continue
         for r in rows:
-            if r["encoder"] != name or r["kind"] == "hifi":
+            if r["encoder"] != name:
+                continue
+            r["truth_error"] = truth_row["truth_error"]
+            if ref is None or r["kind"] == "truth":
                 continue
             if ref["step_s"] and r["step_s"]:
                 r["step_speedup"] = ref["step_s"] / r["step_s"]

@@ -16,8 +16,13 @@ distance ``d1`` images to ``v = 1 / (1 / f - 1 / d1)``; the sensor sits at
 The Airy disk (~1 um at F1.2) is far smaller than a grid pixel (~12 um), so
 the PSF is never simulated at full sensor resolution: the analytic pattern is
 supersampled on a small window around the axis (sub-samples of a quarter of
-``lambda N``, a window holding all but ~0.5 % of the energy plus the blur
-disk) and integrated over each grid pixel, then placed at ``(H // 2, W // 2)``.
+``lambda N``; the window spans the blur disk plus 60 ``lambda N``) and
+integrated over each grid pixel, then placed at ``(H // 2, W // 2)``. The
+Airy rings beyond the window (~0.3 % of the energy, spread over the whole
+sensor) are kept with their ring-averaged asymptote
+``<(2 J1(x) / x)^2> = 4 / (pi x^3)``, i.e. a fraction
+``lambda N / (pi^3 r^3)`` of the power per unit area at radius ``r``
+(:func:`airy_tail`); the window keeps the rest of the power.
 
 Alternatively ``psf_path`` loads a measured lens PSF spanning the sensor
 (PNG, TIFF or NPY, axis at its centre), area-resampled onto the grid.
@@ -40,7 +45,7 @@ from ..settings import setting
 from . import constants as K
 from .base import EncoderConfig, OpticalEncoder
 
-__all__ = ["LensConfig", "Lens", "airy_pixel_psf"]
+__all__ = ["LensConfig", "Lens", "airy_pixel_psf", "airy_tail"]
 
 #: Largest supersampled window (per axis) used for the analytic PSF.
 _MAX_FINE = 1024
@@ -84,6 +89,35 @@ def airy_pixel_psf(
         airy = np.clip(fftconvolve(airy, disk / disk.sum(), mode="same"), 0.0, None)
     out = airy.reshape(n, s, n, s).sum(axis=(1, 3))
     return out / out.sum()
+
+
+def airy_tail(rho: np.ndarray, lam_n: float) -> np.ndarray:
+    """Ring-averaged Airy intensity far from the axis: power per unit area over total power, at radius ``rho``.
+
+    From ``(2 J1(x) / x)^2 -> 4 / (pi x^3)`` on average over a ring
+    (``x = pi rho / (lambda N)``) and a total power of
+    ``4 (lambda N)^2 / pi`` times the peak: ``lambda N / (pi^3 rho^3)``.
+    Accurate to ``O(1 / x)`` (0.5 % at the window's edge, ``x ~ 190``).
+    """
+    return lam_n / (math.pi**3 * np.maximum(rho, 1e-12) ** 3)
+
+
+def _with_tail(win: np.ndarray, grid: tuple[int, int], spacing: tuple[float, float], lam_n: float) -> np.ndarray:
+    """``(H, W)``: the window ``win`` (sums to one) at the grid's centre, scaled to the power inside it, plus the
+    Airy tail (:func:`airy_tail`, at the pixel centres) everywhere else on the grid."""
+    H, W = grid
+    R = win.shape[0] // 2
+    y = (np.arange(H) - H // 2)[:, None] * spacing[0]
+    x = (np.arange(W) - W // 2)[None, :] * spacing[1]
+    tail = airy_tail(np.hypot(y, x), lam_n) * spacing[0] * spacing[1]
+    inside = (np.abs(np.arange(H) - H // 2)[:, None] <= R) & (np.abs(np.arange(W) - W // 2)[None, :] <= R)
+    tail[inside] = 0.0
+    # power outside the window: on the grid, plus beyond it (a disk of the grid's mean half-size, analytic)
+    beyond = 2 * lam_n / (math.pi**2 * (0.25 * (H * spacing[0] + W * spacing[1])))
+    ry, rx = min(R, H // 2, H - 1 - H // 2), min(R, W // 2, W - 1 - W // 2)
+    rows, cols = slice(H // 2 - ry, H // 2 + ry + 1), slice(W // 2 - rx, W // 2 + rx + 1)
+    tail[rows, cols] += win[R - ry : R + ry + 1, R - rx : R + rx + 1] * max(0.0, 1.0 - tail.sum() - beyond)
+    return tail
 
 
 @dataclass
@@ -156,11 +190,8 @@ class Lens(OpticalEncoder):
         blur = self.blur_diameter
         out = torch.zeros(3, H, W, dtype=torch.float64)
         for c, lam in enumerate(devices.WAVELENGTHS_RGB):
-            win = torch.from_numpy(airy_pixel_psf(lam, n_w, self.geometry.spacing, blur))
-            R = win.shape[0] // 2
-            ry, rx = min(R, H // 2, H - 1 - H // 2), min(R, W // 2, W - 1 - W // 2)
-            rows, cols = slice(H // 2 - ry, H // 2 + ry + 1), slice(W // 2 - rx, W // 2 + rx + 1)
-            out[c, rows, cols] = win[R - ry : R + ry + 1, R - rx : R + rx + 1]
+            win = airy_pixel_psf(lam, n_w, self.geometry.spacing, blur)
+            out[c] = torch.from_numpy(_with_tail(win, (H, W), self.geometry.spacing, lam * n_w))
         return out.to(self._anchor.device, self.optics_dtype)
 
     def cache_token(self) -> str:

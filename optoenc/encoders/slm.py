@@ -55,11 +55,14 @@ class LearnedSLMConfig(SLMConfig):
 class _SLMBase(MaskEncoder):
     """Shared layout and PSF of the LCD encoders."""
 
-    #: Measured (``optoenc bench``): on 384 x 512 an LCD row (73 um) spans 5.95
-    #: grid pixels and the point-sampled intensity beats into a moire, 2.0 %
-    #: from the high-fidelity embedding; 288 x 384 (4.46 px per row, still
-    #: dividing every paper embedding) is 0.7 % and cheaper.
-    fidelity_presets = {"default": {"grid": (288, 384)}}
+    #: Measured against the converged truth (``optoenc bench``, grid-free
+    #: Fresnel integrals of the LCD cells): on 384 x 512 an LCD row (73 um)
+    #: spans 5.95 grid pixels and the point-sampled intensity beats into a
+    #: moire; 288 x 384 (4.46 px per row, still dividing every paper
+    #: embedding) is 0.91 % and cheaper. ``reference``: the sharp cell edges
+    #: diffract light to angles a 5.9 um field grid cannot carry (0.56 % at
+    #: 768 x 1024, error ~ field pitch); a 5x finer field (1.19 um) is 0.14 %.
+    fidelity_presets = {"default": {"grid": (288, 384)}, "reference": {"psf_oversample": 5, "padding": "auto"}}
 
     Config = SLMConfig
 
@@ -104,6 +107,9 @@ class _SLMBase(MaskEncoder):
 
     def d2_tensor(self) -> torch.Tensor | float:
         return float(self.config.d2)
+
+    #: Physical spacing of :meth:`mask`'s samples (one LCD sub-pixel), metres: mask pictures in mm.
+    mask_spacing = K.ST7735R_PITCH
 
     def mask(self) -> torch.Tensor:
         """``(384, 160)`` sub-pixel amplitude transmittances (0 outside the active block), detached."""

@@ -1,0 +1,144 @@
+"""``optoenc bench``: what the command does, after the CLI has parsed its arguments.
+
+``fidelity`` (default): :func:`optoenc.bench.pipeline.run`, tables, outcome
+checks, CSV and Pareto plot; ``converge``: the convergence study
+(:mod:`optoenc.bench.converge`); ``speed``: the interleaved step timing
+(:mod:`optoenc.bench.speed`); ``auto``: the cheapest measured setting;
+``optics``: the PSF micro-benchmark. Every report starts and ends with the
+machine's load average (the machine may be shared).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+from ..errors import ConfigError
+
+__all__ = ["main", "parse_grid", "load_line"]
+
+
+def parse_grid(key: str, text: str) -> tuple[int, int]:
+    """``"HxW"`` -> ``(H, W)``, or a ConfigError naming ``key``."""
+    try:
+        h, w = (int(v) for v in text.lower().split("x"))
+        if h >= 1 and w >= 1:
+            return h, w
+    except ValueError:
+        pass
+    raise ConfigError(key, text, "must be HxW with positive integers, e.g. 1520x2028")
+
+
+def load_line(when: str) -> str:
+    """``load average (when): 1.23 0.98 0.76 on N cores``."""
+    try:
+        a, b, c = os.getloadavg()
+    except OSError:  # pragma: no cover - not on POSIX
+        return f"load average ({when}): unknown"
+    return f"load average ({when}): {a:.2f} {b:.2f} {c:.2f} (1, 5, 15 min) on {os.cpu_count()} cores"
+
+
+def _names(text: str) -> list[str]:
+    return [v.strip() for v in text.split(",") if v.strip()]
+
+
+def main(args) -> int:
+    from tqdm.auto import tqdm
+
+    from .. import bench
+
+    if args.what == "optics":
+        from .. import bench_optics
+
+        print(load_line("start"))
+        print(bench_optics.format_table(bench_optics.run()))
+        print(load_line("end"))
+        return 0
+    bar = tqdm(total=1, desc="bench", unit="step", file=sys.stderr, disable=None, leave=False)
+
+    def progress(done: int, total: int, what: str) -> None:
+        bar.total = total
+        bar.n = done
+        bar.set_description(what)
+        bar.refresh()
+
+    out = Path(args.out) if args.out else None
+    encoders = _names(args.encoders) if args.encoders else bench.ENCODERS
+    if args.what == "converge":
+        from . import converge
+
+        print(load_line("start"))
+        with bar:
+            rows = converge.study(encoders, digits=args.digits, progress=progress)
+        print(converge.format_table(rows))
+        print(load_line("end"))
+        if out is not None:
+            print(converge.write_csv(rows, out / "converge.csv"))
+        return 0
+    if args.what == "speed":
+        from . import speed
+
+        print(load_line("start"))
+        with bar:
+            res = speed.interleaved(args.encoder or "learned_slm", "default", repeats=args.repeats, progress=progress)
+        print(speed.format_speed(res))
+        print(load_line("end"))
+        return 0
+    kw = dict(
+        presets=_names(args.presets) if args.presets else bench.PRESETS,
+        digits=args.digits,
+        sweep=args.sweep,
+        truth_grid=parse_grid("--truth-grid", args.truth_grid),
+        paper_grid=parse_grid("--paper-grid", args.paper_grid),
+        encode_count=args.encode_count,
+        truth_dir=None if out is None else out / "truth",
+    )
+    if args.what == "auto":
+        if not args.encoder:
+            raise ConfigError("--encoder", None, "required by `optoenc bench auto` (e.g. --encoder learned_slm)")
+        kw.pop("paper_grid")
+        with bar:
+            choice = bench.auto_select(
+                args.encoder, args.tolerance, args.from_csv, safety=args.safety, progress=progress,
+                **({} if args.from_csv else kw),
+            )
+        f = choice.fidelity.resolved()
+        print(f"auto {args.encoder} @ tolerance {100 * args.tolerance:g}%: {choice.describe()}")
+        print(f"  --fidelity.preset={choice.fidelity.preset} --fidelity.grid={list(f['grid'])} "
+              f"--fidelity.dtype={f['dtype']} --fidelity.padding={f['padding']} "
+              f"--fidelity.psf_oversample={f['psf_oversample']}")
+        print(f"  ({choice.considered} measured settings considered; rejected by the sampling diagnostics: "
+              f"{', '.join(choice.rejected) or 'none'})")
+        return 0
+    print(load_line("start"))
+    everything = bench.encode_all() if args.encode_all else None  # first: everything cold
+    with bar:
+        rows = bench.run(encoders, paper=args.paper, progress=progress, **kw)
+    speed_res = None
+    if args.speed and args.paper and "learned_slm" in encoders:
+        from . import speed
+
+        speed_res = speed.interleaved("learned_slm", "default", repeats=args.repeats)
+    autos = {}
+    for enc in encoders:
+        try:
+            autos[enc] = bench.choose(rows, enc, args.tolerance, args.safety)
+        except ConfigError as err:
+            autos[enc] = err.allowed
+    print(bench.format_table(rows))
+    if args.sweep:
+        print("\nEach knob alone from `default` (cost: learned encoders per training step, fixed per 10,000 digits):")
+        print(bench.format_sweep(rows))
+    if speed_res is not None:
+        from .speed import format_speed
+
+        print()
+        print(format_speed(speed_res))
+    print()
+    print(bench.format_outcomes(bench.outcomes(rows, everything, autos, speed=speed_res)))
+    print(load_line("end"))
+    if out is not None:
+        print(bench.write_csv(rows, out / "bench.csv"))
+        print(bench.save_pareto(rows, out / "pareto.png"))
+    return 0
