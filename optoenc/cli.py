@@ -263,7 +263,7 @@ def cmd_psf(args, extra) -> int:
     print(out)
     mask = enc.mask()
     if mask is not None:
-        print(pictures.save_mask(out.with_name(out.stem + "_mask.png"), mask, f"{enc.name} mask"))
+        print(pictures.save_mask(out.with_name(out.stem + "_mask.png"), mask, f"{enc.name} mask", pictures.mask_spacing(enc, mask)))
     return 0
 
 
@@ -307,7 +307,10 @@ def cmd_simulate(args, extra) -> int:
                   f"{enc.scene_config.distance:g} m is {enc.object_height_px():.1f} px tall on the {H} x {W} grid "
                   f"(|M| = {enc.magnification:.4g})")
         emb = enc(x)
-        path = pictures.save_measurements(out / f"{enc.name}_{emb_shape[0]}x{emb_shape[1]}.png", x, emb, y.tolist())
+        path = pictures.save_measurements(
+            out / f"{enc.name}_{emb_shape[0]}x{emb_shape[1]}.png", x, emb, y.tolist(),
+            scene_height=enc.scene_config.object_height, sensor_size=enc.sensor.size,
+        )
         print(path)
     return 0
 

@@ -60,17 +60,38 @@ class TrainerConfig(Settings):
     eval_batch_size: int = setting(1000, "examples per batch when encoding or evaluating", ge=1)
     progress: bool = setting(True, "show progress bars")
     threads: Optional[int] = setting(None, "torch CPU threads (null: torch's default; at most 4 x the CPU cores)", ge=1)
-    accelerator: str = setting("cpu", "lightning accelerator", choices=("cpu", "gpu", "auto"))
+    accelerator: str = setting(
+        "auto", "Lightning accelerator: 'auto' uses a GPU where one is present", choices=("cpu", "gpu", "cuda", "mps", "auto")
+    )
+    devices: str = setting(
+        "1", "Lightning devices per node: a count ('1', '2'), 'auto', or a list of indices ('0,1')"
+    )
+    strategy: str = setting(
+        "auto", "Lightning strategy ('auto', 'ddp', 'ddp_spawn', 'fsdp', ...): several CPU processes or GPUs"
+    )
+    num_nodes: int = setting(1, "machines for distributed training (Lightning's num_nodes)", ge=1, le=4096)
+    precision: str = setting(
+        "32-true", "Lightning precision ('32-true', '16-mixed', 'bf16-mixed', '64-true'); the optics keep "
+        "fidelity.dtype", choices=("32-true", "32", "16-mixed", "bf16-mixed", "64-true", "64", "transformer-engine"),
+    )
+    logger: str = setting(
+        "csv", "experiment logger beside metrics.csv: 'csv' (Lightning's CSVLogger, under logs/), 'tensorboard', "
+        "'mlflow' (SQLite tracking store, see mlflow_uri) or 'none'; tensorboard and mlflow are optional extras "
+        "(pip install 'optoenc[tracking]')", choices=("csv", "tensorboard", "mlflow", "none"),
+    )
+    mlflow_uri: Optional[str] = setting(
+        None, "MLflow tracking URI (null: sqlite:///<output.root>/mlflow.db)"
+    )
     verify_preset: Optional[str] = setting(
         "reference", "after training, re-evaluate the final encoder at this fidelity preset (null: skip)",
         choices=tuple(FIDELITY_PRESETS),
     )
-    limit_train_batches: float = setting(
-        1.0, "smoke tests: train on this fraction of the batches per epoch (<= 1), or this many batches (a whole "
-        "number > 1); Lightning's limit_train_batches", gt=0,
+    limit_train_batches: Optional[float] = setting(
+        None, "smoke tests: train on this fraction of the batches per epoch (< 1), or this many batches (a whole "
+        "number >= 1); null: all (Lightning's limit_train_batches)", gt=0,
     )
-    limit_val_batches: float = setting(1.0, "as limit_train_batches, for validation", gt=0)
-    limit_test_batches: float = setting(1.0, "as limit_train_batches, for the test", gt=0)
+    limit_val_batches: Optional[float] = setting(None, "as limit_train_batches, for validation", gt=0)
+    limit_test_batches: Optional[float] = setting(None, "as limit_train_batches, for the test", gt=0)
     augment_draw: str = setting(
         "epoch", "augmentations: 'epoch' redraws every transform every epoch; 'once' draws one transform per "
         "example, kept for all epochs, for train, validation and test (the paper's robustness protocol)",
@@ -86,13 +107,13 @@ class TrainerConfig(Settings):
         limits.check_threads("threads", self.threads)
         for stage in ("train", "val", "test"):
             v = getattr(self, f"limit_{stage}_batches")
-            if v > 1 and v != int(v):
-                raise ConfigError(f"limit_{stage}_batches", v, "must be a fraction <= 1 or a whole number of batches")
+            if v is not None and v >= 1 and v != int(v):
+                raise ConfigError(f"limit_{stage}_batches", v, "must be a fraction < 1 or a whole number of batches")
 
     def batch_limit(self, stage: str) -> int | float:
-        """Lightning's ``limit_<stage>_batches``: a fraction (float <= 1) or a number of batches (int)."""
+        """Lightning's ``limit_<stage>_batches``: all (1.0), a fraction (float < 1) or a number of batches (int)."""
         v = getattr(self, f"limit_{stage}_batches")
-        return int(v) if v > 1 else float(v)
+        return 1.0 if v is None else int(v) if v >= 1 else float(v)
 
 
 @dataclass

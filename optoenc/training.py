@@ -174,8 +174,11 @@ def _trainer(run: RunConfig, run_dir: Path, logger: bool = True, extra_callbacks
         limit_test_batches=run.trainer.batch_limit("test"),
         max_epochs=run.trainer.max_epochs,
         accelerator=run.trainer.accelerator,
-        devices=1,
-        logger=False,
+        devices=_devices(run.trainer.devices),
+        strategy=run.trainer.strategy,
+        num_nodes=run.trainer.num_nodes,
+        precision=run.trainer.precision,
+        logger=_logger(run, run_dir) if logger else False,
         callbacks=callbacks,
         enable_progress_bar=bar,
         enable_model_summary=False,
@@ -192,12 +195,15 @@ def _pictures(parts: Parts, run: RunConfig, run_dir: Path, tag: str) -> None:
         pictures.save_psf(pic / f"psf_{tag}.png", psf, enc.geometry.spacing, f"{enc.name} PSF ({tag})")
         mask = enc.mask()
         if mask is not None:
-            pictures.save_mask(pic / f"mask_{tag}.png", mask, f"{enc.name} mask ({tag})")
+            pictures.save_mask(pic / f"mask_{tag}.png", mask, f"{enc.name} mask ({tag})", pictures.mask_spacing(enc, mask))
         n = run.output.examples
         if n and tag != "initial":
             x, y = parts.splits.test[0][:n], parts.splits.test[1][:n]
             emb = enc.add_sensor_noise(enc.measure(x.to(torch.float32)))
-            pictures.save_measurements(pic / "measurements.png", x, emb, y.tolist(), parts.splits.class_names)
+            pictures.save_measurements(
+                pic / "measurements.png", x, emb, y.tolist(), parts.splits.class_names,
+                scene_height=enc.scene_config.object_height, sensor_size=enc.sensor.size,
+            )
 
 
 def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> dict[str, Any]:
@@ -278,6 +284,41 @@ def _interrupted(run: RunConfig, run_dir: Path, trainer, err) -> str:
     if done and checkpoint_path(run_dir, "last").exists():
         return f"{where}; {done} epoch(s) complete in {checkpoint_path(run_dir, 'last')}; resume with: {command}"
     return f"{where}; no epoch complete yet, nothing to resume: start the run again"
+
+
+def _devices(value: str) -> int | str | list[int]:
+    """``trainer.devices`` as Lightning takes it: ``"2"`` -> 2, ``"0,1"`` -> [0, 1], ``"auto"``."""
+    v = str(value).strip()
+    if v.isdigit():
+        return int(v)
+    if "," in v and all(p.strip().isdigit() for p in v.split(",") if p.strip()):
+        return [int(p) for p in v.split(",") if p.strip()]
+    if v in ("auto", "-1"):
+        return v if v == "auto" else -1
+    raise ConfigError("trainer.devices", value, "a count ('1', '2'), 'auto', or device indices ('0,1')")
+
+
+def _logger(run: RunConfig, run_dir: Path):
+    """The experiment logger of ``trainer.logger`` (metrics.csv is written either way)."""
+    kind = run.trainer.logger
+    if kind == "none":
+        return False
+    try:
+        if kind == "csv":
+            from lightning.pytorch.loggers import CSVLogger
+
+            return CSVLogger(save_dir=str(run_dir), name="logs", version="")
+        if kind == "tensorboard":
+            from lightning.pytorch.loggers import TensorBoardLogger
+
+            return TensorBoardLogger(save_dir=str(run_dir), name="tensorboard", version="")
+        from lightning.pytorch.loggers import MLFlowLogger
+
+        uri = run.trainer.mlflow_uri or f"sqlite:///{Path(run.output.root).resolve() / 'mlflow.db'}"
+        return MLFlowLogger(experiment_name=run.output.root and Path(run.output.root).name or "optoenc",
+                            run_name=Path(run_dir).name, tracking_uri=uri)
+    except (ImportError, ModuleNotFoundError) as err:
+        raise ConfigError("trainer.logger", kind, f"needs an optional extra: pip install 'optoenc[tracking]' ({err})") from None
 
 
 def _lightning_trainer(run: RunConfig, **kwargs):
