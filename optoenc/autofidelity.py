@@ -29,8 +29,9 @@ __all__ = ["resolve", "decision_key"]
 
 #: Test digits the error is measured on (fewer than the benchmark's 256: a decision, not a report).
 DIGITS = 64
-#: Version of the stored decision (2: explicit knobs, psf_oversample included).
-FORMAT = 2
+#: Version of the stored decision (2: explicit knobs, psf_oversample included; 3: measured on the run's own
+#: dataset against the converged truth).
+FORMAT = 3
 
 
 def decision_key(run) -> str:
@@ -43,6 +44,8 @@ def decision_key(run) -> str:
         "scene": to_dict(run.scene),
         "sensor": to_dict(run.sensor),
         "tolerance": run.fidelity.tolerance,
+        "dataset": run.names.get("dataset"),
+        "dataset_config": to_dict(run.dataset) if getattr(run, "dataset", None) is not None else None,
     }
     return hashlib.sha256(json.dumps(material, sort_keys=True, default=str).encode()).hexdigest()
 
@@ -75,6 +78,10 @@ def resolve(run, root: str | None = None, measure: Callable[..., Any] | None = N
     if measure is None:
         from .bench.auto import auto_select as measure
     setup = {"config": run.encoder, "scene": run.scene, "sensor": run.sensor}
+    from .plugins import get_registry
+
+    # the run's own scenes (and classes, for the decoder step timed): not MNIST whatever the dataset
+    splits = get_registry("dataset").get(run.names["dataset"])(run.dataset).load()
     try:
         choice = measure(
             name,
@@ -82,10 +89,10 @@ def resolve(run, root: str | None = None, measure: Callable[..., Any] | None = N
             digits=DIGITS,
             embedding=tuple(run.sensor.embedding),
             setups={name: setup},
+            splits=splits,
         )
     except ConfigError as err:
         raise ConfigError("fidelity.tolerance", run.fidelity.tolerance, f"not met by any measured setting of {name}: {err.allowed}") from None
-    from .plugins import get_registry
 
     presets = getattr(get_registry("encoder").get(name), "fidelity_presets", {})
     chosen = choice.fidelity

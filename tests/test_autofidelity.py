@@ -74,11 +74,24 @@ def test_auto_for_the_lens_end_to_end(tmp_path, monkeypatch, quick):
 def test_auto_keeps_the_measured_psf_oversample(tmp_path):
     """The decision is explicit knobs after the encoder's presets: psf_oversample survives, from the disk too."""
     run = compose(overrides=["fidelity.preset=auto"], names={"encoder": "coded_aperture"})
-    # coded_aperture measures `reference` at 3x oversampling (its fidelity_presets)
+    # coded_aperture measures `reference` oversampled (its fidelity_presets)
+    from optoenc.encoders.coded_aperture import CodedAperture
+
+    s = CodedAperture.fidelity_presets["reference"]["psf_oversample"]
+    assert s > 1
     f, info = autofidelity.resolve(run, root=str(tmp_path), measure=_fake([], FidelityConfig(preset="reference")))
-    assert f.psf_oversample == 3 and f.padding == "auto" and info["knobs"]["psf_oversample"] == 3
-    assert f.resolved().psf_oversample == 3  # explicit: no preset table needed to read it back
+    assert f.psf_oversample == s and f.padding == "auto" and info["knobs"]["psf_oversample"] == s
+    assert f.resolved().psf_oversample == s  # explicit: no preset table needed to read it back
     f2, _ = autofidelity.resolve(run, root=str(tmp_path), measure=None)  # from the disk: nothing measured
     assert f2 == f
     run.fidelity = f2  # as `optoenc fit` does
-    assert build_encoder(run).knobs.psf_oversample == 3
+    assert build_encoder(run).knobs.psf_oversample == s
+
+
+def test_auto_measures_on_the_runs_own_dataset(tmp_path):
+    # the bench harness gets the run's dataset (scenes and classes), not MNIST whatever the dataset is
+    calls = []
+    run = compose(overrides=["fidelity.preset=auto"], names={"encoder": "lens"})
+    autofidelity.resolve(run, root=str(tmp_path), measure=_fake(calls))
+    splits = calls[0][2]["splits"]
+    assert splits.num_classes == 10 and splits.test.images.shape[1:] == (1, 28, 28)

@@ -249,3 +249,17 @@ def test_encode_all_mnist_cold_under_30s():
     res = bench.encode_all("fixed_slm", "default")
     assert res["count"] == 70_000 and res["shape"] == (1, 24, 32) and not res["cache_hit"]
     assert res["seconds"] < 30
+
+
+def test_run_measures_the_given_dataset_not_mnist(coarse_truth):
+    # `fit --fidelity.preset=auto` passes the run's own dataset: its scenes and its number of classes (the
+    # decoder step timed has that many outputs); the old bench always loaded MNIST.
+    from optoenc.datasets.base import Split, Splits
+
+    g = torch.Generator().manual_seed(5)
+    split = lambda n: Split(torch.rand(n, 1, 16, 20, generator=g), torch.randint(0, 3, (n,), generator=g))  # noqa: E731
+    rows = pipeline.run(["lens"], ["fast"], digits=4, sweep=False, paper=False, truth_grid=(96, 128),
+                        encode_count=8, steps=1, batch=6, splits=Splits(split(6), split(2), split(4), 3))
+    assert [r["kind"] for r in rows] == ["truth", "preset"] and 0 <= rows[1]["error"] < 1
+    data = pipeline._data(4, 6, 8, Splits(split(6), split(2), split(4), 3))
+    assert data.num_classes == 3 and data.digits.shape == (4, 1, 16, 20)
