@@ -179,6 +179,10 @@ def cmd_fit(args, extra) -> int:
     try:
         summary = fit(run, run_dir, resume=bool(args.resume))
     except Interrupted as err:
+        if not err.where and (run_dir / RUN_FILES["config"]).is_file():  # after training: testing, pictures
+            from .resume import interrupted_note
+
+            err.where = interrupted_note(run_dir, err.name, run.trainer.max_epochs)
         err.where = err.where or f"while preparing {run_dir} (before training; nothing to resume, start the run again)"
         raise
     finally:

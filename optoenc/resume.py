@@ -35,6 +35,7 @@ __all__ = [
     "mark_interrupted",
     "clear_interrupted",
     "raise_on_signals",
+    "interrupted_note",
 ]
 
 #: Keys ``fit --resume`` may change (glob patterns): none changes what an epoch computes.
@@ -168,3 +169,24 @@ def raise_on_signals():
     finally:
         for s, h in old.items():
             signal.signal(s, h)
+
+
+def interrupted_note(run_dir: Path, signal_name: str, max_epochs: int, epoch: int | None = None) -> str:
+    """Mark ``run_dir`` interrupted (``interrupted.json``); the sentence saying where the run is and how to resume.
+
+    Args:
+        epoch: the 0-based epoch in progress (None: after training, e.g. while testing).
+    """
+    import shlex
+
+    from .callbacks import read_metrics
+
+    run_dir = Path(run_dir)
+    done = len(read_metrics(run_dir / RUN_FILES["metrics"]))
+    command = f"optoenc fit --resume {shlex.quote(str(run_dir))}"
+    mark_interrupted(run_dir, signal_name, done if epoch is None else epoch, command)
+    last = run_dir / RUN_FILES["checkpoints"] / "last.ckpt"
+    where = f"after training ({done} of {max_epochs} epochs)" if epoch is None else f"during epoch {epoch + 1} of {max_epochs}"
+    if done and last.exists():
+        return f"{where} in {run_dir}; {done} epoch(s) complete in {last}; resume with: {command}"
+    return f"{where} in {run_dir}; no epoch complete yet, nothing to resume: start the run again"

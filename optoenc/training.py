@@ -25,7 +25,7 @@ from .loaders import encode, make_loader
 from .module import EncoderClassifier
 from .plugins import get_registry
 from .errors import ConfigError, DataError, Interrupted
-from .resume import clear_interrupted, mark_interrupted, raise_on_signals, read_checkpoint
+from .resume import clear_interrupted, interrupted_note, raise_on_signals, read_checkpoint
 from .rundir import RUN_FILES, atomic_write_text, write_json
 from .settings import to_dict
 
@@ -273,17 +273,7 @@ def _check_restore(module, ckpt: dict, path: Path) -> None:
 
 def _interrupted(run: RunConfig, run_dir: Path, trainer, err) -> str:
     """Mark the run directory as interrupted; the sentence saying where the run is and how to resume it."""
-    import shlex
-
-    from .callbacks import read_metrics
-
-    done = len(read_metrics(run_dir / RUN_FILES["metrics"]))
-    command = f"optoenc fit --resume {shlex.quote(str(run_dir))}"
-    mark_interrupted(run_dir, err.name, trainer.current_epoch, command)
-    where = f"during epoch {trainer.current_epoch + 1} of {run.trainer.max_epochs} in {run_dir}"
-    if done and checkpoint_path(run_dir, "last").exists():
-        return f"{where}; {done} epoch(s) complete in {checkpoint_path(run_dir, 'last')}; resume with: {command}"
-    return f"{where}; no epoch complete yet, nothing to resume: start the run again"
+    return interrupted_note(run_dir, err.name, run.trainer.max_epochs, trainer.current_epoch)
 
 
 def _devices(value: str) -> int | str | list[int]:
