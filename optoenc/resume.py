@@ -48,6 +48,8 @@ SAFE_ON_RESUME = (
     "trainer.verify_preset",
     "trainer.test_every_epoch",
     "trainer.limit_test_batches",
+    "trainer.logger",
+    "trainer.mlflow_uri",
     "output.*",
 )
 #: Keys ``test | validate | export --run`` may not change (glob patterns): they define the trained model.
