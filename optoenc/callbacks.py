@@ -35,6 +35,8 @@ class EpochMetrics(L.Callback):
         self._start = time.time()
 
     def on_train_epoch_end(self, trainer, pl_module) -> None:
+        if not trainer.is_global_zero:  # distributed: one writer
+            return
         m = trainer.callback_metrics
         get = lambda k: f"{float(m[k]):.6g}" if k in m else ""  # noqa: E731
         row = {

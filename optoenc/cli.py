@@ -7,6 +7,7 @@ line ``optoenc: error: ...`` and exits with code 2, without a traceback.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 from typing import Sequence
@@ -18,6 +19,9 @@ from .registry import KINDS
 __all__ = ["main"]
 
 #: Listing command -> plugin kind (`optoenc encoders`, ...), one per kind of :data:`optoenc.registry.KINDS`.
+#: Set by rank 0 of ``optoenc fit`` for the DDP workers Lightning launches with the same command line.
+_RUN_DIR_ENV = "OPTOENC_RUN_DIR"
+
 KIND_COMMANDS = {f"{kind}s": kind for kind in KINDS}
 
 
@@ -171,9 +175,12 @@ def cmd_fit(args, extra) -> int:
         from .resume import check_resume
 
         check_resume(run_dir, compose([_load_yaml(str(cfg))]).tree, run.tree)
+    elif os.environ.get(_RUN_DIR_ENV) and os.environ.get("LOCAL_RANK", "0") != "0":
+        run_dir = Path(os.environ[_RUN_DIR_ENV])  # a DDP worker Lightning re-launched: rank 0's run directory
     else:
         stem = f"{run.names['encoder']}-{run.names['decoder']}"
         run_dir = new_run_dir(run.output.root, run.output.name, stem)
+        os.environ[_RUN_DIR_ENV] = str(run_dir)  # inherited by DDP workers (strategy=ddp re-runs this command)
     _quiet_lightning()
     print(f"run directory: {run_dir}", file=sys.stderr)
     try:

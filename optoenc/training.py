@@ -236,6 +236,11 @@ def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> di
         raise
     best = checkpoint_path(run_dir, "best")
     best_val = float(trainer.checkpoint_callback.best_model_score or float("nan"))
+    if best_val != best_val:  # ddp_spawn: the callback's state stays in the workers; metrics.csv has it
+        from .callbacks import read_metrics
+
+        vals = [float(r["val_acc"]) for r in read_metrics(run_dir / RUN_FILES["metrics"]) if r.get("val_acc")]
+        best_val = max(vals) if vals else float("nan")
     test = trainer.test(parts.module, parts.loaders["test"], ckpt_path=str(best) if best.exists() else None, verbose=False)
     _pictures(parts, run, run_dir, "final")
     pictures.save_curves(run_dir / RUN_FILES["pictures"] / "curves.png", run_dir / RUN_FILES["metrics"])
