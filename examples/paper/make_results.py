@@ -1,0 +1,169 @@
+"""Write docs/results/ from the paper sweeps: tables (CSV, markdown), curves, learned PSFs, example embeddings.
+
+    python examples/paper/make_results.py --table1 sweeps/table1 --table3 sweeps/table3 --out docs/results
+
+Each sweep is run first with ``optoenc sweep examples/paper/table1.yaml`` (and table3.yaml); missing
+or unfinished cells are left out of the tables (their count is printed), so this can be re-run as
+cells finish over several sittings.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import shutil
+from pathlib import Path
+
+import torch
+
+from optoenc import sweep
+from optoenc.rundir import atomic_write_text
+
+T1_COLUMNS = ("encoder", "embedding", "decoder", "seeds", "test_acc", "test_acc_std", "best_test_acc",
+              "reference_test_acc", "paper_acc", "diff_vs_paper")
+T3_COLUMNS = ("encoder", "embedding", "decoder", "transform", "augment_mode", "seeds", "test_acc", "test_acc_std",
+              "best_test_acc", "paper_acc", "diff_vs_paper")
+ENCODERS = ("lens", "coded_aperture", "diffuser", "fixed_slm", "learned_slm", "learned_phase_mask")
+EMBEDDINGS = ("24x32", "12x16", "6x8", "3x4")
+
+
+def _csv(rows, columns) -> str:
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=columns, extrasaction="ignore", lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: "" if r.get(k) is None else r[k] for k in columns})
+    return buf.getvalue()
+
+
+def _order(r):
+    enc = ENCODERS.index(r["encoder"]) if r["encoder"] in ENCODERS else 99
+    emb = EMBEDDINGS.index(r["embedding"]) if r["embedding"] in EMBEDDINGS else 99
+    return (r.get("decoder", ""), enc, emb, r.get("transform", ""), r.get("augment_mode", ""))
+
+
+def _fmt(v, sd=None):
+    if v is None:
+        return "-"
+    return f"{v:.2f}" + (f" ± {sd:.2f}" if sd is not None else "")
+
+
+def _md(rows, keys) -> str:
+    head = [*keys, "paper", "ours (val-selected)", "ours (best test, paper's way)", "difference", "seeds"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in rows:
+        lines.append("| " + " | ".join([*(str(r[k]) for k in keys), _fmt(r["paper_acc"]),
+                                         _fmt(r["test_acc"], r["test_acc_std"]), _fmt(r["best_test_acc"]),
+                                         _fmt(r["diff_vs_paper"]), str(r["seeds"])]) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _collect(spec_path: Path, sweep_dir: Path):
+    spec = sweep.load_spec(spec_path)
+    planned = sweep.plan(spec, sweep_dir)
+    sweep.write_tables(spec, planned, sweep_dir)
+    rows = sweep.cell_rows(spec, planned)
+    return spec, planned, rows, sorted(sweep.aggregate(rows), key=_order)
+
+
+def _learned_psfs(planned, out: Path) -> Path | None:
+    from optoenc.pictures import _figure, _save
+
+    pics = [(p.cell.name, p.path / "pictures" / "psf_final.png") for p in planned
+            if p.run.names["encoder"].startswith("learned") and (p.path / "pictures" / "psf_final.png").is_file()]
+    if not pics:
+        return None
+    import matplotlib.image as mpimg
+
+    cols = min(4, len(pics))
+    rows = (len(pics) + cols - 1) // cols
+    plt, fig = _figure((4.2 * cols, 3.4 * rows))
+    for i, (name, path) in enumerate(pics):
+        ax = fig.add_subplot(rows, cols, i + 1)
+        ax.imshow(mpimg.imread(path))
+        ax.set_title(name.replace("encoder=", "").replace(",", " ")[:48], fontsize=7)
+        ax.axis("off")
+    fig.tight_layout()
+    return _save(plt, fig, out)
+
+
+def _embeddings(planned, out: Path, n: int = 4) -> Path | None:
+    """The same test digits through every encoder at every size (learned ones: their trained checkpoint)."""
+    from optoenc.config import build_encoder, compose
+    from optoenc.pictures import _figure, _save
+    from optoenc.plugins import get_registry
+    from optoenc.training import checkpoint_path, load_encoder
+
+    digits = get_registry("dataset").get("mnist")(None).load().test[0][:n]
+    trained = {(p.run.names["encoder"], "x".join(map(str, p.run.sensor.embedding))): p for p in planned
+               if p.run.names["decoder"] == "fcnn" and p.run.seed == 0 and not p.run.augment
+               and checkpoint_path(p.path, "best").is_file()}
+    rows = []
+    for enc in ENCODERS:
+        for emb in EMBEDDINGS:
+            a, b = (int(v) for v in emb.split("x"))
+            if enc.startswith("learned"):
+                p = trained.get((enc, emb))
+                if p is None:
+                    continue
+                encoder = load_encoder(p.run, p.path)
+            else:
+                encoder = build_encoder(compose(overrides=[f"sensor.embedding=[{a},{b}]"], names={"encoder": enc}))
+            with torch.no_grad():
+                rows.append((f"{enc}\n{emb}", encoder.eval().measure(digits)))
+    if not rows:
+        return None
+    plt, fig = _figure((1.6 * (n + 1), 1.25 * len(rows)))
+    for i in range(n):
+        ax = fig.add_subplot(len(rows) + 1, n + 1, i + 2)
+        ax.imshow(digits[i, 0], cmap="gray")
+        ax.axis("off")
+        ax.set_title("scene" if i == 0 else "", fontsize=7)
+    for r, (label, emb) in enumerate(rows, start=1):
+        ax = fig.add_subplot(len(rows) + 1, n + 1, r * (n + 1) + 1)
+        ax.text(0.5, 0.5, label, ha="center", va="center", fontsize=6)
+        ax.axis("off")
+        for i in range(n):
+            ax = fig.add_subplot(len(rows) + 1, n + 1, r * (n + 1) + i + 2)
+            ax.imshow(emb[i, 0], cmap="gray")
+            ax.axis("off")
+    fig.suptitle("sensor embeddings of the same test digits (noise-free, each image scaled to its own range)",
+                 fontsize=8)
+    return _save(plt, fig, out)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    here = Path(__file__).parent
+    ap.add_argument("--table1", type=Path, default=Path("sweeps/table1"))
+    ap.add_argument("--table3", type=Path, default=Path("sweeps/table3"))
+    ap.add_argument("--out", type=Path, default=Path("docs/results"))
+    ap.add_argument("--no-embeddings", action="store_true", help="skip the example-embedding figure")
+    args = ap.parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
+    if (args.table1 / "cells").is_dir():
+        _, planned, rows, agg = _collect(here / "table1.yaml", args.table1)
+        atomic_write_text(args.out / "table1.csv", _csv(agg, T1_COLUMNS))
+        atomic_write_text(args.out / "table1.md", _md(agg, ("encoder", "embedding", "decoder")))
+        for name in ("accuracy.png", "curves.png"):
+            if (args.table1 / name).is_file():
+                shutil.copyfile(args.table1 / name, args.out / f"table1_{name}")
+        _learned_psfs(planned, args.out / "learned_psfs.png")
+        if not args.no_embeddings:
+            _embeddings(planned, args.out / "embeddings.png")
+        done = sum(r["state"] == "finished" for r in rows)
+        times = [r["wall_time_s"] for r in rows if r["wall_time_s"]]
+        print(f"table1: {done} of {len(rows)} cells finished, {sum(times) / 3600:.2f} h of cell wall time")
+    if (args.table3 / "cells").is_dir():
+        _, planned, rows, agg = _collect(here / "table3.yaml", args.table3)
+        atomic_write_text(args.out / "table3.csv", _csv(agg, T3_COLUMNS))
+        atomic_write_text(args.out / "table3.md", _md(agg, ("encoder", "embedding", "transform", "augment_mode")))
+        if (args.table3 / "curves.png").is_file():
+            shutil.copyfile(args.table3 / "curves.png", args.out / "table3_curves.png")
+        done = sum(r["state"] == "finished" for r in rows)
+        print(f"table3: {done} of {len(rows)} cells finished")
+
+
+if __name__ == "__main__":
+    main()
