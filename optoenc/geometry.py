@@ -163,7 +163,7 @@ class FidelityConfig(Settings):
         "is within `tolerance` (measured once per encoder configuration by `optoenc fit`, then cached)",
         choices=(*FIDELITY_PRESETS, "auto"),
     )
-    tolerance: float = setting(0.01, "preset 'auto': largest relative embedding error against the high-fidelity reference", gt=0)
+    tolerance: float = setting(0.01, "preset 'auto': largest relative embedding error against the converged truth (optoenc bench)", gt=0)
     grid: Optional[tuple[int, int]] = setting(None, "simulation grid (rows, columns) over the sensor area", ge=1)
     dtype: Optional[str] = setting(None, "floating point precision of the optics", choices=("float32", "float64"))
     padding: Optional[str] = setting(
