@@ -15,10 +15,12 @@ SMALL_SENSOR = {"embedding": (6, 8)}
 
 
 def test_resolved_includes_the_encoders_measured_presets():
-    # coded_aperture's `reference` is measured at 3x oversampling, auto padding (it was '1.0', 1 from resolved()).
+    # coded_aperture's `reference` is measured oversampled, auto padding (resolved() once gave the table's '1.0', 1).
+    measured = CodedAperture.fidelity_presets["reference"]
+    assert measured["psf_oversample"] > 1 and measured["padding"] == "auto"
     enc = CodedAperture(fidelity={"preset": "reference"}, sensor=SMALL_SENSOR)
     assert enc.fidelity.resolved() == enc.knobs
-    assert enc.knobs.psf_oversample == 3 and enc.knobs.padding == "auto"
+    assert enc.knobs.psf_oversample == measured["psf_oversample"] and enc.knobs.padding == "auto"
     assert enc.knobs.grid == (768, 1024) and enc.knobs.dtype == "float64"
     # the unbound config still gives the shared table; explicit knobs beat the encoder's values
     assert FidelityConfig(preset="reference").resolved().psf_oversample == 1
