@@ -119,6 +119,9 @@ def _parser() -> argparse.ArgumentParser:
     sw.add_argument("--executor", default="local", help="local (processes), submitit-local or slurm (needs submitit)")
     sw.add_argument("--restart-changed", action="store_true", help="move aside cells whose stored config differs, re-run them")
     sw.add_argument("--collect", action="store_true", help="only collect finished cells into the tables and plots")
+    from .privacy.commands import add_parsers as _privacy_parsers
+
+    _privacy_parsers(sub)
     return p
 
 
@@ -332,6 +335,18 @@ def cmd_bench(args, extra) -> int:
     return bench_main(args)
 
 
+def cmd_reconstruct(args, extra) -> int:
+    from .privacy.commands import reconstruct
+
+    return reconstruct(args, extra)
+
+
+def cmd_privacy(args, extra) -> int:
+    from .privacy.commands import privacy
+
+    return privacy(args, extra)
+
+
 def cmd_version() -> int:
     from .plugins import get_host
 
@@ -396,6 +411,8 @@ COMMANDS = {
     "simulate": cmd_simulate,
     "bench": cmd_bench,
     "export": cmd_export,
+    "reconstruct": cmd_reconstruct,
+    "privacy": cmd_privacy,
     **{k: cmd_list for k in KIND_COMMANDS},
 }
 
@@ -409,7 +426,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not args.command:
             parser.print_help()
             return 0
-        if extra and args.command not in ("fit", "validate", "test", "psf", "simulate", "export"):
+        if extra and args.command not in ("fit", "validate", "test", "psf", "simulate", "export", "reconstruct", "privacy"):
             parser.error(f"unrecognized arguments: {' '.join(extra)}")
         from .resume import raise_on_signals
 

@@ -22,25 +22,14 @@ returned estimate is ``w`` (non-negative by construction).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 
 import torch
 
-from ..settings import Settings, setting
+from .settings import ADMMConfig
 from .operators import DTYPE, LinearOperator
 from .tv import differences, differences_adjoint, laplacian
 
 __all__ = ["ADMMConfig", "admm", "objective"]
-
-
-@dataclass
-class ADMMConfig(Settings):
-    """ADMM settings (the paper: 100 iterations; tau and penalties tuned on training digits, docs/privacy.md)."""
-
-    iterations: int = setting(100, "ADMM iterations", ge=1)
-    tau: float = setting(3e-6, "TV weight tau, for the operator scaled to unit spectral norm", ge=0)
-    mu_tv: float = setting(1e-3, "ADMM penalty of the split u = Psi x (unit-norm operator)", gt=0)
-    mu_nonneg: float = setting(1e-3, "ADMM penalty of the split w = x >= 0 (unit-norm operator)", gt=0)
 
 
 def _soft(v: torch.Tensor, t: float) -> torch.Tensor:

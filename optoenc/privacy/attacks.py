@@ -14,32 +14,18 @@ Threat models of the follow-up work (Bezzam et al. 2022; OpEnCam 2023):
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Callable
 
 import torch
 from torch import nn
 
-from ..settings import Settings, setting
+from .settings import ATTACKS, LearnedConfig
 from .operators import DTYPE, LinearOperator
 
 __all__ = ["ATTACKS", "LearnedConfig", "Inverter", "train_inverter", "estimate_operator", "PLAINTEXT_RIDGE"]
 
-#: Attack names, in table order.
-ATTACKS = ("admm", "learned", "plaintext", "pinv")
 #: Ridge weight of the plaintext attacker, relative to the mean scene energy per pixel.
 PLAINTEXT_RIDGE = 1e-3
-
-
-@dataclass
-class LearnedConfig(Settings):
-    """The learned inversion attacker (an MLP embedding -> scene, trained on the training split)."""
-
-    pairs: int = setting(20000, "training (embedding, scene) pairs drawn from the training split", ge=1)
-    epochs: int = setting(6, "training epochs (fresh sensor noise every epoch)", ge=1)
-    hidden: int = setting(256, "units of each of the two hidden layers", ge=1)
-    lr: float = setting(1e-3, "Adam learning rate", gt=0)
-    batch_size: int = setting(128, "pairs per optimiser step", ge=1)
 
 
 class Inverter(nn.Module):

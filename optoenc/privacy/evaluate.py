@@ -16,7 +16,7 @@ from typing import Any, Callable, Optional
 import torch
 
 from ..errors import ConfigError
-from ..settings import Settings, setting
+from .settings import PrivacyConfig
 from . import metrics
 from .admm import ADMMConfig, admm
 from .attacks import ATTACKS, LearnedConfig, PLAINTEXT_RIDGE, estimate_operator, train_inverter
@@ -25,17 +25,6 @@ from .reader import reader
 from .tikhonov import TikhonovConfig, pseudo_inverse
 
 __all__ = ["PrivacyConfig", "Result", "evaluate", "dataset_token"]
-
-
-@dataclass
-class PrivacyConfig(Settings):
-    """What `optoenc privacy` measures and on how many digits."""
-
-    count: int = setting(500, "test scenes attacked and measured (the first ones of the test split)", ge=1)
-    gallery: int = setting(100, "re-identification gallery: the true scene and gallery-1 others of its class", ge=2)
-    plaintext_n: tuple[int, ...] = setting((100, 300, 1000, 3000, 10000), "plaintext attack: numbers of known pairs", ge=1)
-    seed: int = setting(0, "seed of the sensor noise, the galleries and the learned attacker")
-    examples: int = setting(8, "example reconstructions kept for pictures", ge=0)
 
 
 @dataclass

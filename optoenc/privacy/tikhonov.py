@@ -2,22 +2,13 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 
 import torch
 
-from ..settings import Settings, setting
+from .settings import TikhonovConfig
 from .operators import DTYPE, LinearOperator
 
 __all__ = ["TikhonovConfig", "tikhonov", "pseudo_inverse"]
-
-
-@dataclass
-class TikhonovConfig(Settings):
-    """Linear baselines' settings, relative to the operator scaled to unit spectral norm."""
-
-    lam: float = setting(1e-3, "Tikhonov weight lambda in 1/2||y - Ax||^2 + lam/2 ||x||^2 (unit-norm operator)", gt=0)
-    rcond: float = setting(1e-3, "pseudo-inverse: singular values below rcond * the largest are dropped", gt=0, lt=1)
 
 
 @torch.no_grad()

@@ -1,0 +1,229 @@
+"""`optoenc reconstruct` and `optoenc privacy`: options and command logic (cli.py parses and dispatches)."""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import sys
+from pathlib import Path
+
+from ..errors import ConfigError, DataError
+from ..rundir import atomic_write_bytes, write_json
+from .settings import ATTACKS, METHODS, ADMMConfig, LearnedConfig, PrivacyConfig, TikhonovConfig
+
+__all__ = ["add_parsers", "reconstruct", "privacy"]
+
+
+def _source_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--run", action="append", metavar="RUN_DIR", help="run directory of `optoenc fit` (trained or fixed encoder)")
+    g.add_argument("--encoder", help="an encoder by name, with --section.key=value settings (e.g. --sensor.embedding=[6,8])")
+    p.add_argument("--config", action="append", default=[], metavar="YAML", help="with --encoder: run config file")
+    p.add_argument("--which", default="best", choices=("best", "last"), help="checkpoint of --run")
+    p.add_argument("--iterations", type=int, help=f"ADMM iterations (default {ADMMConfig().iterations})")
+    p.add_argument("--tau", type=float, help=f"ADMM TV weight, unit-norm operator (default {ADMMConfig().tau:g})")
+    p.add_argument("--mu-tv", type=float, help=f"ADMM penalty of u = Psi x (default {ADMMConfig().mu_tv:g})")
+    p.add_argument("--mu-nonneg", type=float, help=f"ADMM penalty of w = x (default {ADMMConfig().mu_nonneg:g})")
+    p.add_argument("--rcond", type=float, help=f"pseudo-inverse cut-off (default {TikhonovConfig().rcond:g})")
+    p.add_argument("--seed", type=int, default=0, help="noise seed")
+    p.add_argument("--out", metavar="DIR", help="output folder (default: RUN_DIR/reconstruct or RUN_DIR/privacy)")
+
+
+def add_parsers(sub) -> None:
+    """Add the two subcommands to the CLI's subparsers."""
+    r = sub.add_parser("reconstruct", help="reconstruct scenes from sensor embeddings (ADMM, Tikhonov, pseudo-inverse)")
+    _source_options(r)
+    r.add_argument("--image", action="append", default=[], metavar="FILE", help="reconstruct this image (repeatable) instead of test digits")
+    r.add_argument("--count", type=int, default=8, help="test digits (when no --image)")
+    r.add_argument("--scene-shape", metavar="HxW", help="reconstruction grid (default: the dataset's, 28x28)")
+    r.add_argument("--method", default="admm", help=f"comma-separated methods: {', '.join(METHODS)}")
+    r.add_argument("--lam", type=float, help=f"Tikhonov weight, unit-norm operator (default {TikhonovConfig().lam:g})")
+    r.add_argument("--no-noise", action="store_true", help="reconstruct noise-free embeddings")
+    p = sub.add_parser("privacy", help="attack a run's embeddings and measure privacy (table, pictures, privacy-utility plot)")
+    _source_options(p)
+    p.add_argument("--sweep", metavar="DIR", help="a folder of run directories: one table and the privacy-utility plot")
+    p.add_argument("--attacks", default=",".join(ATTACKS), help=f"comma-separated attacks: {', '.join(ATTACKS)}")
+    p.add_argument("--count", type=int, help=f"test digits attacked (default {PrivacyConfig().count})")
+    p.add_argument("--gallery", type=int, help=f"re-identification gallery size (default {PrivacyConfig().gallery})")
+    p.add_argument("--plaintext-n", metavar="N,N", help="plaintext attack: numbers of known pairs (default "
+                   f"{','.join(str(v) for v in PrivacyConfig().plaintext_n)})")
+    p.add_argument("--learned-epochs", type=int, help=f"learned attacker's epochs (default {LearnedConfig().epochs})")
+    p.add_argument("--learned-pairs", type=int, help=f"learned attacker's training pairs (default {LearnedConfig().pairs})")
+    p.add_argument("--force", action="store_true", help="re-measure runs that already have privacy/privacy.csv")
+
+
+def _given(**kw):
+    return {k: v for k, v in kw.items() if v is not None}
+
+
+def _admm_config(args) -> ADMMConfig:
+    return ADMMConfig(**_given(iterations=args.iterations, tau=args.tau, mu_tv=args.mu_tv, mu_nonneg=args.mu_nonneg))
+
+
+def _names(text: str, allowed, key: str) -> list[str]:
+    out = [v.strip() for v in text.split(",") if v.strip()]
+    for v in out:
+        if v not in allowed:
+            raise ConfigError(key, v, f"one of {', '.join(allowed)}")
+    if not out:
+        raise ConfigError(key, text, f"name at least one of {', '.join(allowed)}")
+    return out
+
+
+def _shape(text: str, key: str) -> tuple[int, int]:
+    try:
+        h, w = (int(v) for v in text.lower().split("x"))
+        if h >= 1 and w >= 1:
+            return h, w
+    except ValueError:
+        pass
+    raise ConfigError(key, text, "must be HxW with positive integers, e.g. 28x28")
+
+
+def _encoder(args, extra):
+    """``(run config, encoder, summary, default output folder)`` from --run or --encoder."""
+    from ..cli import _compose
+    from ..config import build_encoder
+    from ..cli import _split_overrides
+    from .report import load_run
+
+    if args.run:
+        if len(args.run) > 1:
+            raise ConfigError("--run", args.run, "give one run directory here (several: a --sweep folder)")
+        run, enc, summary = load_run(args.run[0], _split_overrides(extra), args.which)
+        return run, enc, summary, Path(args.run[0])
+    if not args.encoder:
+        raise ConfigError("--encoder", None, "give --run RUN_DIR or --encoder NAME")
+    run = _compose(args, extra)
+    return run, build_encoder(run).eval(), {}, None
+
+
+def _load_images(files, shape):
+    import torch
+    from PIL import Image, UnidentifiedImageError
+
+    out = []
+    for f in files:
+        try:
+            img = Image.open(f).convert("L").resize((shape[1], shape[0]), Image.BILINEAR)
+        except (OSError, UnidentifiedImageError) as err:
+            raise DataError(f"--image {f}: cannot read the image ({str(err).splitlines()[0]})") from None
+        out.append(torch.tensor(list(img.getdata()), dtype=torch.float64).reshape(1, *shape) / 255.0)
+    return torch.stack(out)
+
+
+def _npy(path: Path, t) -> Path:
+    import numpy as np
+
+    buf = io.BytesIO()
+    np.save(buf, t.detach().cpu().numpy())
+    return atomic_write_bytes(path, buf.getvalue())
+
+
+def reconstruct(args, extra) -> int:
+    import torch
+
+    from ..plugins import get_registry
+    from . import metrics
+    from .admm import admm
+    from .operators import from_encoder
+    from .pictures import save_rows
+    from .tikhonov import pseudo_inverse, tikhonov
+
+    methods = _names(args.method, METHODS, "--method")
+    run, enc, _summary, run_dir = _encoder(args, extra)
+    if args.out is None and run_dir is None:
+        raise ConfigError("--out", None, "required with --encoder (the folder the pictures and arrays go to)")
+    out = Path(args.out) if args.out else run_dir / "reconstruct"
+    if args.count < 1:
+        raise ConfigError("--count", args.count, "must be >= 1")
+    if args.image:
+        shape = _shape(args.scene_shape, "--scene-shape") if args.scene_shape else (28, 28)
+        scenes, titles = _load_images(args.image, shape), [Path(f).name for f in args.image]
+    else:
+        splits = get_registry("dataset").get(run.names["dataset"])(run.dataset).load()
+        scenes, labels = splits.test[0][: args.count].double(), splits.test[1][: args.count]
+        if args.scene_shape:
+            shape = _shape(args.scene_shape, "--scene-shape")
+            scenes = torch.nn.functional.interpolate(scenes, size=shape, mode="area")
+        titles = [f"label {int(v)}" for v in labels]
+    print(f"operator of {enc.name} for {tuple(scenes.shape[-2:])} scenes", file=sys.stderr)
+    op = from_encoder(enc, tuple(scenes.shape[-2:]), scene_channels=scenes.shape[1])
+    emb = op.forward(scenes)
+    if not args.no_noise:
+        emb = enc.add_sensor_noise(emb.float(), generator=torch.Generator().manual_seed(args.seed)).double()
+    rows, arrays, report = [("scene", scenes), ("sensor embedding", emb)], {"scenes": scenes, "embeddings": emb}, {}
+    for m in methods:
+        print(f"{m} ...", file=sys.stderr)
+        if m == "admm":
+            rec = admm(op, emb, _admm_config(args))
+        elif m == "tikhonov":
+            rec = tikhonov(op, emb, args.lam)
+        else:
+            rec = pseudo_inverse(op, emb, args.rcond)
+        rows.append((f"{m}", rec.clamp(0, 1)))
+        arrays[m] = rec
+        report[m] = {"psnr_db": metrics.summarize(metrics.psnr(rec, scenes)),
+                     "ssim": metrics.summarize(metrics.ssim(rec, scenes))}
+        _npy(out / f"reconstructions_{m}.npy", rec)
+    a, b = enc.geometry.embedding
+    pic = save_rows(out / "reconstruction.png", rows, titles, f"{enc.name}, embedding {a}x{b}")
+    _npy(out / "scenes.npy", scenes)
+    _npy(out / "embeddings.npy", emb)
+    buf = io.BytesIO()
+    torch.save({k: v.float() for k, v in arrays.items()}, buf)
+    atomic_write_bytes(out / "reconstructions.pt", buf.getvalue())
+    write_json(out / "reconstruct.json", {"encoder": enc.name, "embedding": [a, b], "noise": not args.no_noise,
+                                          "admm": vars(_admm_config(args)), "metrics_mean_std": report})
+    for m, r in report.items():
+        print(f"{m:9s} PSNR {r['psnr_db'][0]:.2f} +- {r['psnr_db'][1]:.2f} dB  SSIM {r['ssim'][0]:.3f} +- {r['ssim'][1]:.3f}")
+    print(pic)
+    return 0
+
+
+def _evaluate_kw(args) -> dict:
+    pc = PrivacyConfig(**_given(count=args.count, gallery=args.gallery, seed=args.seed,
+                                plaintext_n=tuple(int(v) for v in args.plaintext_n.split(",")) if args.plaintext_n else None))
+    lc = LearnedConfig(**_given(epochs=args.learned_epochs, pairs=args.learned_pairs))
+    tc = TikhonovConfig(**_given(rcond=args.rcond))
+    return {"attacks": tuple(_names(args.attacks, ATTACKS, "--attacks")), "config": pc, "admm_config": _admm_config(args),
+            "learned_config": lc, "linear_config": tc}
+
+
+def privacy(args, extra) -> int:
+    from ..cli import _split_overrides
+    from . import report
+
+    kw = _evaluate_kw(args)
+    say = lambda msg: print(f"  {msg} ...", file=sys.stderr)  # noqa: E731
+    chance = 1.0 / kw["config"].gallery
+    if args.sweep:
+        rows = []
+        for cell in report.sweep_cells(args.sweep):
+            print(f"{cell.name}", file=sys.stderr)
+            rows += report.measure_run(cell, kw, _split_overrides(extra), args.force, say)
+        out = Path(args.out) if args.out else Path(args.sweep) / report.PRIVACY_DIR
+        paths = report.write_sweep(rows, out, chance)
+    elif args.run:
+        if len(args.run) > 1:
+            raise ConfigError("--run", args.run, "give one run directory (several: put them in a --sweep folder)")
+        rows = report.measure_run(Path(args.run[0]), kw, _split_overrides(extra), True, say)
+        paths = [Path(args.run[0]) / report.PRIVACY_DIR / "privacy.csv"]
+    else:
+        from ..plugins import get_registry
+        from .evaluate import evaluate
+
+        run, enc, _s, _d = _encoder(args, extra)
+        if not args.out:
+            raise ConfigError("--out", None, "required with --encoder (the folder the table and pictures go to)")
+        splits = get_registry("dataset").get(run.names["dataset"])(run.dataset).load()
+        result = evaluate(enc, splits, cache_root=run.trainer.cache_dir, progress=say, **kw)
+        rows = report.run_rows(result, enc, {}, enc.name)
+        out = Path(args.out)
+        report.save_examples(out, result, enc.name)
+        paths = [report.write_table(rows, out / "privacy.csv", out / "privacy.md")]
+    print(report.markdown(rows), end="")
+    for p in paths:
+        print(p)
+    return 0
