@@ -150,3 +150,46 @@ def test_class_names_title_the_measurement_pictures(tmp_path, monkeypatch):
     pictures.save_measurements(tmp_path / "numbered.png", x, emb, [1, 0])
     scene_titles = [t for t in titles if t and not t.startswith("(")]  # the embeddings are titled by their shape
     assert scene_titles == ["column", "row", "label 1", "label 0"]
+
+
+@pytest.mark.filterwarnings("ignore::optoenc.optics.SamplingWarning")
+def test_a_plugin_written_from_the_page_trains_through_the_cli(tmp_path, monkeypatch):
+    """The page's decoder and dataset plus the zone-plate mask plugin: registered by hooks, trained by `optoenc fit`."""
+    import json
+    from pathlib import Path
+
+    from optoenc import hookimpl, plugins
+    from optoenc.cli import main
+
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "plugins" / "optoenc-zoneplate" / "src"))
+    from optoenc_zoneplate.zoneplate import ZonePlate
+
+    small_cnn, bars = _doc_class("class SmallCNN(Decoder)", "SmallCNN"), _doc_class("class Bars(Dataset)", "Bars")
+
+    class Plugin:
+        @hookimpl
+        def optoenc_register_encoders(self, registry):
+            registry.add(ZonePlate)
+
+        @hookimpl
+        def optoenc_register_decoders(self, registry):
+            registry.add(small_cnn)
+
+        @hookimpl
+        def optoenc_register_datasets(self, registry):
+            registry.add(bars)
+
+    plugins.reset()
+    try:
+        assert plugins.register_plugin(Plugin(), name="docs_plugin").ok
+        argv = ["fit", "--encoder", "zone_plate", "--decoder", "small_cnn", "--dataset", "bars", "--dataset.count=120",
+                "--fidelity.preset=fast", "--sensor.embedding=[6,8]", "--trainer.max_epochs=1", "--trainer.progress=false",
+                "--trainer.verify_preset=null", "--output.root", str(tmp_path)]
+        assert main(argv) == 0
+        (run_dir,) = tmp_path.iterdir()
+        summary = json.loads((run_dir / "summary.json").read_text())
+        assert summary["names"] == {"encoder": "zone_plate", "decoder": "small_cnn", "dataset": "bars"}
+        assert 0.0 <= summary["test_acc"] <= 1.0  # one epoch of 80 images: a smoke test, not a benchmark
+        assert (run_dir / "pictures" / "mask_final.png").is_file()  # the mask() hook draws the zone plate
+    finally:
+        plugins.reset()
