@@ -8,7 +8,8 @@ A plugin is a module (or object) with functions decorated by
 
 Each hook receives a registrar; call ``registry.add(cls)`` for each class.
 optoenc registers its own built-ins through these same hooks
-(:mod:`optoenc.builtins`).
+(:mod:`optoenc.builtins`). The classes' interfaces: docs/plugin-authoring.md;
+their conformance kits: :mod:`optoenc.testing`.
 """
 
 from __future__ import annotations
@@ -27,22 +28,22 @@ hookimpl = pluggy.HookimplMarker(PROJECT)
 
 @hookspec
 def optoenc_register_encoders(registry):
-    """Register `OpticalEncoder` subclasses: ``registry.add(MyEncoder)``."""
+    """Register `optoenc.OpticalEncoder` subclasses (or `optoenc.MaskEncoder` ones): ``registry.add(MyEncoder)``."""
 
 
 @hookspec
 def optoenc_register_decoders(registry):
-    """Register `Decoder` subclasses (digital classifiers on the embedding)."""
+    """Register `optoenc.Decoder` subclasses (digital classifiers on the embedding)."""
 
 
 @hookspec
 def optoenc_register_augmentations(registry):
-    """Register `Augmentation` subclasses (object-plane transforms)."""
+    """Register `optoenc.Augmentation` subclasses (object-plane transforms)."""
 
 
 @hookspec
 def optoenc_register_datasets(registry):
-    """Register `Dataset` classes (scenes with labels)."""
+    """Register `optoenc.Dataset` subclasses (labelled images loaded into `optoenc.Splits`)."""
 
 
 #: hook name -> registry kind, in registration order: one hook per kind of
