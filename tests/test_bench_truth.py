@@ -142,3 +142,27 @@ def test_wavelength_chunks_give_the_same_psf():
     one.wavelength_chunk = 1
     torch.testing.assert_close(one.psf(), all3.psf(), rtol=1e-12, atol=0)
     assert math.isclose(float(one.psf().sum()), 1.0)
+
+
+def test_convergence_study_rows(monkeypatch):
+    from optoenc.bench import converge
+
+    monkeypatch.setattr(T, "QUADRATURE", 1)
+    rows = converge.study(["lens"], levels=((24, 32), (48, 64), (96, 128)), digits=2, embedding=(6, 8))
+    assert [r["level"] for r in rows] == ["24x32", "48x64", "96x128", "limit", "truth"]
+    assert rows[0]["error_vs_previous"] is None and rows[1]["error_vs_previous"] > 0
+    assert rows[-1]["error_vs_truth"] == 0 and rows[-1]["truth_method"] == "analytic"
+    # the lens's refined simulation is its truth's route on the finest level: equal there
+    assert rows[2]["error_vs_truth"] < 1e-9
+    assert "limit" in converge.format_table(rows)
+
+
+@pytest.mark.slow  # a paper step at 380 x 507 per repeat: plumbing, but ~5 s
+def test_interleaved_speed_reports_min_median_and_load():
+    from optoenc.bench import speed
+
+    res = speed.interleaved("learned_slm", "fast", threads=(1,), repeats=2, per_paper=2, batch=4)
+    r = res["threads"][1]
+    assert len(r["paper_s"]) == 2 and len(r["step_s"]) == 4
+    assert r["ratio_min"] == pytest.approx(r["paper_min"] / r["step_min"]) and r["ratio_min"] > 1
+    assert "load" in speed.format_speed(res)
