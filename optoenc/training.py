@@ -64,6 +64,7 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
         run.fidelity, run.fidelity_auto = resolve(run, root=run.trainer.cache_dir)
     torch.manual_seed(run.seed)
     splits = get_registry("dataset").get(run.names["dataset"])(run.dataset).load()
+    splits.check_trainable()  # val_size = 0 used to train with NaN validation and leave no best.ckpt
     encoder = build_encoder(run)
     augs = [get_registry("augmentation").get(a)(cfg) for a, cfg in run.augment.items()]
     decoder = get_registry("decoder").get(run.names["decoder"])(
@@ -119,10 +120,12 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
         with torch.no_grad():
             emb = sample if precomputed else encode(encoder, sample, ebs)
         decoder.set_statistics(emb.mean().item(), emb.std().item())
+    # One process: whole-batch indexing. Distributed: per-example loaders for Lightning's samplers.
+    one = str(run.trainer.devices).strip() in ("1", "auto") and run.trainer.num_nodes == 1
     loaders = {
-        "train": make_loader(*data["train"][:2], bs, shuffle=True, seed=run.seed, extra=data["train"][2:]),
-        "val": make_loader(*data["val"][:2], ebs, shuffle=False, extra=data["val"][2:]),
-        "test": make_loader(*data["test"][:2], ebs, shuffle=False, extra=data["test"][2:]),
+        "train": make_loader(*data["train"][:2], bs, shuffle=True, seed=run.seed, extra=data["train"][2:], batched=one),
+        "val": make_loader(*data["val"][:2], ebs, shuffle=False, extra=data["val"][2:], batched=one),
+        "test": make_loader(*data["test"][:2], ebs, shuffle=False, extra=data["test"][2:], batched=one),
     }
     return Parts(module, splits, loaders, precomputed)
 

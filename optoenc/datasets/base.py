@@ -81,14 +81,21 @@ class Splits:
                 )
             if images.is_floating_point() and len(images) and not bool(torch.isfinite(images).all()):
                 raise DataError(f"dataset {name} split: images hold NaN or infinite values")
+
+    def check_trainable(self) -> None:
+        """What a training run needs: >= 2 training examples, >= 1 for validation (model selection) and for the test.
+
+        Raises:
+            ConfigError: naming the size setting (``dataset.val_size``, ...).
+        """
         if len(self.train.labels) < 2:
             raise ConfigError("dataset.train_size", len(self.train.labels), "must be >= 2 (a training batch needs two examples)")
         if len(self.val.labels) < 1:
             raise ConfigError(
-                "dataset.val_size", len(self.val.labels), "must be >= 1: the best checkpoint is selected on the validation split"
+                "dataset.val_size", len(self.val.labels), "must be >= 1 for a run: the best checkpoint is selected on the validation split"
             )
         if len(self.test.labels) < 1:
-            raise ConfigError("dataset.test_size", len(self.test.labels), "must be >= 1")
+            raise ConfigError("dataset.test_size", len(self.test.labels), "must be >= 1 for a run")
 
     def sizes(self) -> dict[str, int]:
         """Number of examples per split."""

@@ -54,8 +54,9 @@ class MNISTConfig(DatasetConfig):
         None, f"folder of the IDX .gz files (null: ${ROOT_ENV} if set, else the bundled copy)"
     )
     val_size: int = setting(
-        5000, "validation examples carved from the 60,000 training images (the best checkpoint is selected on them)",
-        ge=1, lt=TRAIN_TOTAL,
+        5000, "validation examples carved from the 60,000 training images (the best checkpoint is selected on them: "
+        "a run needs >= 1)",
+        ge=0, lt=TRAIN_TOTAL,
     )
     train_size: Optional[int] = setting(
         None, "training examples (null: all those not in the validation split); smaller for quick runs", ge=2

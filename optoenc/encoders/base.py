@@ -172,14 +172,14 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
     MAX_OVERFILL = 10.0
 
     def _check_object_size(self, height: float | None = None) -> None:
-        """Refuse a geometry whose scene image is mostly off the sensor or smaller than one grid pixel."""
+        """Refuse a geometry whose scene image is mostly off the sensor (a tiny object is a point source: allowed)."""
         px = self.object_height_px(height)
         H = self.geometry.grid[0]
-        if 1 <= px <= self.MAX_OVERFILL * H:
+        if px <= self.MAX_OVERFILL * H:
             return
         h = self.scene_config.object_height if height is None else height
         size = f"the {h * 1e3:.3g} mm scene to {h * self.magnification * 1e3:.3g} mm on the {self.sensor.size[0] * 1e3:.3g} mm sensor"
-        why = "less than 1/10 of it reaches the sensor" if px > 1 else "smaller than one simulated pixel"
+        why = "less than 1/10 of it reaches the sensor"
         raise ConfigError(
             "encoder.d2", self.d2,
             f"images {size} (|M| = d2 / scene.distance = {self.magnification:.3g}): {why}; "

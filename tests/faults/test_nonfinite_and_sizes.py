@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+import torch
 
 from optoenc import limits
 from optoenc.config import build_encoder, compose
@@ -55,12 +56,18 @@ def test_every_float_setting_refuses_inf():
     assert checked >= 10  # the registry has many float settings; a silent zero would prove nothing
 
 
-@pytest.mark.parametrize("d2", [1e30, 1e-12])
-def test_geometry_that_sees_nothing_is_refused(d2):
+@pytest.mark.parametrize("encoder", ["diffuser", "lens", "fixed_slm"])
+def test_geometry_that_sees_nothing_is_refused(encoder):
     # d2 = 1e30 magnifies the digit 2.5e30 times: the sensor sees a speck of it and the run trains at chance
     with pytest.raises(ConfigError, match="encoder.d2") as err:
-        build_encoder(compose(names={"encoder": "diffuser"}, overrides=[f"encoder.d2={d2}"]))
+        build_encoder(compose(names={"encoder": encoder}, overrides=["encoder.d2=1e30"]))
     assert "scene.object_height" in str(err.value)
+    # the bound: an image up to MAX_OVERFILL times the field of view is still allowed (cropped, with a warning)
+    enc = build_encoder(compose(names={"encoder": encoder}))
+    fov = enc.geometry.grid[0] * enc.geometry.spacing[0] / enc.magnification  # object-plane field of view, m
+    enc.measure(torch.rand(1, 1, 28, 28), height=0.9 * enc.MAX_OVERFILL * fov)
+    with pytest.raises(ConfigError):
+        enc.measure(torch.rand(1, 1, 28, 28), height=1.1 * enc.MAX_OVERFILL * fov)
 
 
 def test_grid_bound_is_derived_from_memory():

@@ -36,18 +36,19 @@ def test_loader_drops_only_a_single_example_last_batch():
     assert [len(b[1]) for b in make_loader(x, y, 200, shuffle=False)] == [200, 1]  # evaluation keeps every example
 
 
-@pytest.mark.parametrize(
-    "override,key",
-    [
-        ("dataset.val_size=0", "dataset.val_size"),  # used to give NaN validation, then no best.ckpt for `test`
-        ("dataset.train_size=1", "dataset.train_size"),
-        ("trainer.verify_preset=bogus", "trainer.verify_preset"),  # used to be reported only after training
-    ],
-)
-def test_refused_up_front(override, key):
+def test_verify_preset_refused_when_composed():
+    # used to be reported only after training
     with pytest.raises(ConfigError) as err:
-        compose(names={"encoder": "diffuser"}, overrides=[override])
-    assert err.value.key == key
+        compose(names={"encoder": "diffuser"}, overrides=["trainer.verify_preset=bogus"])
+    assert err.value.key == "trainer.verify_preset"
+
+
+@pytest.mark.parametrize("override,key", [("--dataset.val_size=0", "dataset.val_size"), ("--dataset.train_size=1", "dataset.train_size")])
+def test_split_sizes_refused_before_training(tmp_path, tiny, override, key):
+    # val_size = 0 used to give NaN validation, then no best.ckpt for `optoenc test`
+    line = one_line_error(main("fit", *tiny, override))
+    assert key in line
+    assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())
 
 
 def test_cli_verify_preset_refused_before_training(tmp_path, tiny):
