@@ -49,7 +49,7 @@ def test_encoder_name_conflict():
 
 
 def test_cli_encoder_name_conflict(tmp_path):
-    line = one_line_error(run("fit", "--encoder", "diffuser", "--encoder.name=lens", "--print-config"))
+    line = one_line_error(main("fit", "--encoder", "diffuser", "--encoder.name=lens", "--print-config"))
     assert "encoder.name" in line and "diffuser" in line
 
 

@@ -10,7 +10,7 @@ import pytest
 from optoenc.errors import ConfigError, DataError
 from optoenc.rundir import atomic_write_bytes, new_run_dir
 
-from faultkit import one_line_error, run
+from faultkit import main, one_line_error, run
 
 
 def _mode(p) -> int:
@@ -70,7 +70,7 @@ def test_cli_output_root_file_or_read_only(tmp_path, tiny, where):
     root = tmp_path / "file" if where == "file" else "/proc/optoenc-runs"
     if where == "file":
         root.write_text("")
-    line = one_line_error(run("fit", *tiny, f"--output.root={root}"))
+    line = one_line_error((run if where == "file" else main)("fit", *tiny, f"--output.root={root}"))
     assert "output.root" in line
 
 
@@ -78,5 +78,5 @@ def test_cli_out_naming_an_existing_folder(tmp_path):
     line = one_line_error(run("psf", "--encoder", "diffuser", "--out", tmp_path))
     assert "--out" in line and "folder" in line
     (tmp_path / "f").write_text("")
-    line = one_line_error(run("simulate", "--encoder", "diffuser", "--out", tmp_path / "f"))
+    line = one_line_error(main("simulate", "--encoder", "diffuser", "--out", tmp_path / "f"))
     assert "--out" in line

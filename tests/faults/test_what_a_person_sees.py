@@ -89,7 +89,7 @@ def test_curves_use_the_epochs_of_metrics_csv(tmp_path, figures):
 
 def test_psf_command_prints_the_mask_path_too(tmp_path):
     out = tmp_path / "p.png"
-    proc = run("psf", "--encoder", "coded_aperture", "--out", out)
+    proc = run("psf", "--encoder", "coded_aperture", "--fidelity.preset=fast", "--out", out)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert proc.stdout.split() == [str(out), str(tmp_path / "p_mask.png")]
     assert (tmp_path / "p_mask.png").exists()
