@@ -128,8 +128,10 @@ def _check_type(name: str, value: Any, expected: Any) -> None:
         ok = isinstance(value, (int, float)) and not isinstance(value, bool)
     elif expected is int:
         ok = isinstance(value, int) and not isinstance(value, bool)
-    elif expected in (bool, str):
-        ok = isinstance(value, expected)
+    elif expected is bool:
+        ok = isinstance(value, bool)
+    elif expected is str:  # a number is a fine spelling of some string settings (fidelity.padding = 0.5)
+        ok = isinstance(value, (str, int, float)) and not isinstance(value, bool)
     else:
         return
     if not ok:
