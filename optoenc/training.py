@@ -305,11 +305,11 @@ def _logger(run: RunConfig, run_dir: Path):
         if kind == "csv":
             from lightning.pytorch.loggers import CSVLogger
 
-            return CSVLogger(save_dir=str(run_dir), name="logs", version="")
+            return CSVLogger(save_dir=str(run_dir), name="logs")  # logs/version_<k>: a resume never overwrites
         if kind == "tensorboard":
             from lightning.pytorch.loggers import TensorBoardLogger
 
-            return TensorBoardLogger(save_dir=str(run_dir), name="tensorboard", version="")
+            return TensorBoardLogger(save_dir=str(run_dir), name="tensorboard")
         from lightning.pytorch.loggers import MLFlowLogger
 
         uri = run.trainer.mlflow_uri or f"sqlite:///{Path(run.output.root).resolve() / 'mlflow.db'}"

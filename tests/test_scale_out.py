@@ -28,7 +28,8 @@ def _fit(tmp_path, extra, name):
 
 def test_csv_logger_is_the_default(tmp_path):
     summary, run_dir = _fit(tmp_path, [], "csv")
-    logged = (run_dir / "logs" / "metrics.csv").read_text()
+    (path,) = (run_dir / "logs").glob("version_*/metrics.csv")  # versioned: a resume adds version_1
+    logged = path.read_text()
     assert "val_acc" in logged and "train_loss_epoch" in logged
     assert summary["val_acc"] == summary["val_acc"]  # finite
 
@@ -36,7 +37,7 @@ def test_csv_logger_is_the_default(tmp_path):
 def test_tensorboard_logger_writes_events(tmp_path):
     pytest.importorskip("tensorboard")
     _fit(tmp_path, ["trainer.logger=tensorboard"], "tb")
-    assert list((tmp_path / "tb" / "tensorboard").glob("events.out.tfevents.*"))
+    assert list((tmp_path / "tb" / "tensorboard").glob("version_*/events.out.tfevents.*"))
 
 
 def test_mlflow_logger_uses_a_sqlite_store(tmp_path):
