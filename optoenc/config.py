@@ -211,6 +211,15 @@ def _message(err: Exception) -> str:
     return msg.replace("$VALUE", "the value")
 
 
+def _given(err: Exception) -> Any:
+    """The value an omegaconf error was about (its ``value``), else what its message quotes."""
+    value = getattr(err, "value", None)
+    if value is not None:
+        return value
+    m = re.search(r"'([^'$]*)'", str(err))
+    return m.group(1) if m else "(value not reported)"
+
+
 def _translate(err: Exception, schema: DictConfig, user: Any = None) -> ConfigError:
     """A ConfigError naming the full key path and the value given, found leaf by leaf in ``user``."""
     culprits = []
@@ -220,7 +229,7 @@ def _translate(err: Exception, schema: DictConfig, user: Any = None) -> ConfigEr
         except oc_errors.OmegaConfBaseException as leaf_err:
             culprits.append((path, value, leaf_err))
             break
-    path, value, err = culprits[0] if culprits else (getattr(err, "full_key", None) or "config", "?", err)
+    path, value, err = culprits[0] if culprits else (getattr(err, "full_key", None) or "config", _given(err), err)
     if isinstance(err, oc_errors.ConfigKeyError):
         leaf = path.split(".")[-1]
         known = _keys_at(schema, path)
@@ -274,7 +283,7 @@ def compose(
                 raise ConfigError(item.split("=", 1)[0], item.partition("=")[2], f"not a valid value ({_message(err)})") from None
             user = OmegaConf.merge(user, dotlist)
     except oc_errors.OmegaConfBaseException as err:
-        raise ConfigError(getattr(err, "full_key", None) or "config", "?", _message(err)) from None
+        raise ConfigError(getattr(err, "full_key", None) or "config", _given(err), _message(err)) from None
     names = dict(names or {})
     for s in _PLUGIN_SECTIONS:  # `--encoder diffuser --encoder.name=lens`: two answers, neither silently wins
         given = [str(v) for k, v in (o.split("=", 1) for o in overrides or [] if "=" in o) if k.strip() == f"{s}.name"]
@@ -305,7 +314,7 @@ def compose(
         user = OmegaConf.to_container(user, resolve=True) if isinstance(user, DictConfig) else {}
     except oc_errors.OmegaConfBaseException as err:
         key = getattr(err, "full_key", None) or "config"
-        raw = dict(_leaves(OmegaConf.to_container(user, resolve=False))).get(key, "?")
+        raw = dict(_leaves(OmegaConf.to_container(user, resolve=False))).get(key, _given(err))
         raise ConfigError(key, raw, f"cannot be resolved ({_message(err)})") from None
     for s in _PLUGIN_SECTIONS:
         if isinstance(user.get(s), dict):
