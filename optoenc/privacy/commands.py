@@ -109,7 +109,7 @@ def _load_images(files, shape):
             img = Image.open(f).convert("L").resize((shape[1], shape[0]), Image.BILINEAR)
         except (OSError, UnidentifiedImageError) as err:
             raise DataError(f"--image {f}: cannot read the image ({str(err).splitlines()[0]})") from None
-        out.append(torch.tensor(list(img.getdata()), dtype=torch.float64).reshape(1, *shape) / 255.0)
+        out.append(torch.from_numpy(__import__("numpy").asarray(img, dtype="float64").copy()).reshape(1, *shape) / 255.0)
     return torch.stack(out)
 
 

@@ -1,0 +1,75 @@
+"""Attackers and metrics: analytic values, invariants, determinism."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from optoenc.errors import ConfigError
+from optoenc.privacy import metrics
+from optoenc.privacy.attacks import estimate_operator, train_inverter
+from optoenc.privacy.operators import LinearOperator
+from optoenc.privacy.settings import LearnedConfig
+
+
+def test_psnr_ssim_analytic():
+    x = torch.full((2, 1, 16, 16), 0.5)
+    assert torch.allclose(metrics.psnr(x + 0.1, x), torch.tensor(20.0), atol=1e-3)  # MSE 0.01 -> 20 dB
+    r = torch.rand(2, 1, 16, 16, generator=torch.Generator().manual_seed(0))
+    assert torch.allclose(metrics.ssim(r, r), torch.ones(2), atol=1e-6)
+    # reconstructions are clipped to the scene range [0, 1] before scoring
+    assert torch.allclose(metrics.psnr(x.clamp(0, 1) * 0 + 5.0, torch.ones_like(x)), torch.full((2,), float("inf")))
+
+
+def test_reid_gallery_and_top1():
+    g = torch.Generator().manual_seed(1)
+    pool = torch.rand(60, 1, 6, 6, generator=g)
+    labels = torch.arange(60) % 3
+    probes = torch.tensor([0, 4, 8])
+    gal = metrics.reid_gallery(labels[probes], labels, probes, size=10, seed=0)
+    assert gal.shape == (3, 10) and (gal[:, 0] == probes).all()
+    assert (labels[gal] == labels[probes][:, None]).all()  # same class only
+    assert all(len(set(row.tolist())) == 10 for row in gal)  # own scene once, no repeats
+    assert metrics.reid_top1(pool[probes], pool, gal).tolist() == [1.0, 1.0, 1.0]
+    # a constant reconstruction carries nothing: never counted as a hit
+    assert metrics.reid_top1(torch.zeros(3, 1, 6, 6), pool, gal).tolist() == [0.0, 0.0, 0.0]
+    with pytest.raises(ConfigError, match="gallery"):
+        metrics.reid_gallery(labels[probes], labels, probes, size=30)
+
+
+def test_summarize_binomial_error():
+    m, se = metrics.summarize(torch.tensor([1.0, 0.0, 1.0, 0.0]), binary=True)
+    assert m == 0.5 and math.isclose(se, math.sqrt(0.25 / 4))
+
+
+def test_plaintext_estimate_converges_to_the_operator():
+    g = torch.Generator().manual_seed(2)
+    A = torch.randn(30, 49, generator=g, dtype=torch.float64)
+    scenes = torch.rand(400, 1, 7, 7, generator=g, dtype=torch.float64)
+    emb = (scenes.reshape(400, -1) @ A.T).reshape(400, 1, 30, 1)
+    est = estimate_operator(scenes, emb, ridge=1e-12)
+    # noise-free and N >> n: ridge regression returns A to rounding
+    assert torch.allclose(est.matrix, A, atol=1e-6)
+    noisy = emb + 0.05 * torch.randn(emb.shape, generator=g, dtype=torch.float64)
+    errs = [float((estimate_operator(scenes[:k], noisy[:k]).matrix - A).norm()) for k in (60, 400)]
+    assert errs[1] < errs[0]  # more known pairs, better estimate
+
+
+def test_learned_inverter_learns_and_is_seeded():
+    g = torch.Generator().manual_seed(3)
+    A = torch.randn(36, 25, generator=g, dtype=torch.float64)  # over-determined: the scene is recoverable
+    op = LinearOperator(A, (1, 5, 5), (1, 6, 6))
+    scenes = (torch.rand(600, 1, 5, 5, generator=g) > 0.6).float()
+    clean = op.forward(scenes.double())
+    noise = lambda c, gen: c + 0.01 * torch.randn(c.shape, generator=gen)  # noqa: E731
+    cfg = LearnedConfig(pairs=500, epochs=20, hidden=64, lr=1e-2, batch_size=50)
+    m1 = train_inverter(clean[:500], scenes[:500], noise, cfg, seed=0)
+    m2 = train_inverter(clean[:500], scenes[:500], noise, cfg, seed=0)
+    with torch.no_grad():
+        out1, out2 = m1(clean[500:]), m2(clean[500:])
+    assert torch.equal(out1, out2)  # same seed, same attacker
+    mse = float(((out1 - scenes[500:]) ** 2).mean())
+    floor = float(((scenes[:500].mean(0) - scenes[500:]) ** 2).mean())
+    assert mse < 0.25 * floor  # it has learned far more than the mean scene
