@@ -208,8 +208,9 @@ def privacy(args, extra) -> int:
     elif args.run:
         if len(args.run) > 1:
             raise ConfigError("--run", args.run, "give one run directory (several: put them in a --sweep folder)")
-        rows = report.measure_run(Path(args.run[0]), kw, _split_overrides(extra), True, say)
-        paths = [Path(args.run[0]) / report.PRIVACY_DIR / "privacy.csv"]
+        out = Path(args.out) if args.out else Path(args.run[0]) / report.PRIVACY_DIR
+        rows = report.measure_run(Path(args.run[0]), kw, _split_overrides(extra), True, say, out)
+        paths = [out / "privacy.csv"]
     else:
         from ..plugins import get_registry
         from .evaluate import evaluate

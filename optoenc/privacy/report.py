@@ -140,12 +140,15 @@ def save_examples(out_dir: Path, result, title: str) -> list[Path]:
 
 
 def measure_run(run_dir: Path, evaluate_kw: dict, overrides: Sequence[str] = (), force: bool = False,
-                say: Callable[[str], None] = lambda _m: None) -> list[dict]:
-    """Measure one run directory (or reuse its existing table unless ``force``); returns its rows."""
+                say: Callable[[str], None] = lambda _m: None, out: Path | None = None) -> list[dict]:
+    """Measure one run directory (or reuse its existing table unless ``force``); returns its rows.
+
+    The table and pictures go to ``out`` (default ``RUN_DIR/privacy``).
+    """
     from ..plugins import get_registry
     from .evaluate import evaluate
 
-    out = Path(run_dir) / PRIVACY_DIR
+    out = Path(out) if out else Path(run_dir) / PRIVACY_DIR
     table = out / "privacy.csv"
     if table.is_file() and not force:
         return read_table(table)
