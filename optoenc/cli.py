@@ -119,6 +119,8 @@ def _parser() -> argparse.ArgumentParser:
     sw.add_argument("--executor", default="local", help="local (processes), submitit-local or slurm (needs submitit)")
     sw.add_argument("--restart-changed", action="store_true", help="move aside cells whose stored config differs, re-run them")
     sw.add_argument("--collect", action="store_true", help="only collect finished cells into the tables and plots")
+    sw.add_argument("--only", action="append", metavar="GLOB",
+                    help="run only the cells whose name matches (repeatable), e.g. 'encoder=learned_slm,*'")
     from .privacy.commands import add_parsers as _privacy_parsers
 
     _privacy_parsers(sub)
@@ -362,7 +364,9 @@ def cmd_sweep(args, extra) -> int:
 
     spec = sweep.load_spec(args.spec)
     out = Path(args.out or Path("sweeps") / spec.name)
-    planned = sweep.plan(spec, out)
+    planned = sweep.plan(spec, out, args.only)
+    if args.only and not planned:
+        raise ConfigError("--only", ",".join(args.only), "matches no cell (see the names with --dry-run)")
     if args.dry_run:
         from .sweep.estimate import estimate
 
@@ -378,7 +382,7 @@ def cmd_sweep(args, extra) -> int:
         _quiet_lightning()
         from tqdm.auto import tqdm
 
-        todo = [p for p in planned if p.state != "finished"]
+        todo = [p for p in planned if p.todo or p.state == "changed"]
         print(f"sweep {spec.name}: {len(planned)} cells, {len(todo)} to run -> {out}", file=sys.stderr)
         with tqdm(total=len(todo), desc="cells", unit="cell", disable=not sys.stderr.isatty()) as bar:
             def done(p, ok, err):
@@ -388,10 +392,9 @@ def cmd_sweep(args, extra) -> int:
 
             failures = sweep.run(planned, out, workers=args.workers, executor=args.executor,
                                  restart_changed=args.restart_changed, on_done=done)
-        planned = sweep.plan(spec, out)
     else:
         failures = {}
-    files = sweep.write_tables(spec, planned, out)
+    files = sweep.write_tables(spec, sweep.plan(spec, out), out)  # the tables always cover every cell
     for path in files.values():
         print(path)
     if failures:

@@ -29,7 +29,9 @@ def run_cell(path: str | Path, threads: int | None = None) -> dict:
 
     path = Path(path)
     started = time.time()
-    write_json(path / STATUS, {"state": "running", "pid": os.getpid(), "started": started})
+    import socket
+
+    write_json(path / STATUS, {"state": "running", "pid": os.getpid(), "host": socket.gethostname(), "started": started})
     try:
         overrides = [f"trainer.threads={int(threads)}"] if threads else []
         run = compose([OmegaConf.load(path / RUN_FILES["config"])], overrides)

@@ -9,7 +9,7 @@ from typing import Any
 from ..rundir import RUN_FILES
 from .spec import PLUGIN_KEYS, Cell, SweepSpec, _flatten
 
-__all__ = ["compose_cell", "cell_dir", "cell_state", "STATUS", "VOLATILE_KEYS", "comparable_yaml"]
+__all__ = ["compose_cell", "cell_dir", "cell_state", "STATUS", "VOLATILE_KEYS", "config_differences"]
 
 #: The per-cell status file (``state``: running, finished, failed; ``error``; times).
 STATUS = "status.json"
@@ -58,26 +58,63 @@ def cell_dir(sweep_dir: str | Path, cell: Cell) -> Path:
     return Path(sweep_dir) / "cells" / cell.name
 
 
-def comparable_yaml(text: str) -> str:
-    """A stored config without the volatile keys, for staleness checks."""
-    from omegaconf import OmegaConf
+def _leaves(tree, prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in (tree or {}).items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict) and v and k != "augment":
+            out.update(_leaves(v, f"{key}."))
+        else:
+            out[key] = v
+    return out
 
-    tree = OmegaConf.create(text)
-    for key in VOLATILE_KEYS:
-        section, leaf = key.split(".")
-        if section in tree and leaf in tree[section]:
-            tree[section][leaf] = None
-    return OmegaConf.to_yaml(tree)
+
+def comparable(text: str) -> dict[str, Any]:
+    """A stored config's settings as ``{dotted key: value}``, without the volatile keys."""
+    import yaml
+
+    flat = _leaves(yaml.safe_load(text) or {})
+    return {k: v for k, v in flat.items() if k not in VOLATILE_KEYS}
+
+
+def config_differences(stored: str, new: str) -> list[str]:
+    """Dotted keys whose values differ between two configs.
+
+    Keys present in only one of them are settings added or removed by
+    another version of optoenc (or a plugin) and are not compared: a finished
+    cell stays finished when optoenc grows a setting.
+    """
+    a, b = comparable(stored), comparable(new)
+    return sorted(k for k in set(a) & set(b) if a[k] != b[k])
+
+
+def _alive(pid, host) -> bool:
+    """Whether process ``pid`` on ``host`` (this machine's name when recorded here) still runs."""
+    import os
+    import socket
+
+    if not pid or (host and host != socket.gethostname()):
+        return bool(pid) and bool(host) and host != socket.gethostname()  # another machine's: assume alive
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def cell_state(path: Path, config_yaml: str | None = None) -> str:
-    """``new``, ``finished``, ``interrupted`` (has a last checkpoint), ``failed`` or ``changed``.
+    """``new``, ``finished``, ``running``, ``interrupted`` (has a last checkpoint), ``failed`` or ``changed``.
+
+    ``running``: its status names a live process (a second sweep over the
+    same folder leaves it alone).
 
     ``changed``: the directory holds a run of another configuration than
     ``config_yaml`` (volatile keys aside).
     """
     cfg = path / RUN_FILES["config"]
-    if config_yaml is not None and cfg.is_file() and comparable_yaml(cfg.read_text()) != comparable_yaml(config_yaml):
+    if config_yaml is not None and cfg.is_file() and config_differences(cfg.read_text(), config_yaml):
         return "changed"
     if (path / RUN_FILES["summary"]).is_file():
         return "finished"
@@ -89,6 +126,8 @@ def cell_state(path: Path, config_yaml: str | None = None) -> str:
             status = {}
     if status.get("state") == "failed":
         return "failed"
+    if status.get("state") == "running" and _alive(status.get("pid"), status.get("host")):
+        return "running"  # another sweep process is training it right now
     if (path / RUN_FILES["checkpoints"] / "last.ckpt").is_file():
         return "interrupted"
     return "new"

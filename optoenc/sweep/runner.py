@@ -19,7 +19,7 @@ from typing import Callable, Iterable
 
 from ..errors import ConfigError
 from ..rundir import RUN_FILES, atomic_write_text
-from .cells import cell_dir, cell_state, compose_cell
+from .cells import cell_dir, cell_state, compose_cell, config_differences
 from .spec import Cell, SweepSpec
 
 __all__ = ["PlannedCell", "plan", "run", "thread_budget", "EXECUTORS"]
@@ -32,7 +32,7 @@ EXECUTORS = ("local", "submitit-local", "slurm")
 class PlannedCell:
     cell: Cell
     path: Path
-    state: str  #: new, finished, interrupted, failed, changed
+    state: str  #: new, finished, running, interrupted, failed, changed
     config_yaml: str
     run: object  #: the RunConfig
 
@@ -41,10 +41,17 @@ class PlannedCell:
         return self.state in ("new", "interrupted", "failed")
 
 
-def plan(spec: SweepSpec, sweep_dir: str | Path) -> list[PlannedCell]:
-    """Every cell with its state; composing each cell checks all its settings before anything runs."""
+def plan(spec: SweepSpec, sweep_dir: str | Path, only: list[str] | None = None) -> list[PlannedCell]:
+    """Every cell (or those whose name matches a glob of ``only``) with its state.
+
+    Composing each cell checks all its settings before anything runs.
+    """
+    from fnmatch import fnmatchcase
+
     out = []
     for cell in spec.expand():
+        if only and not any(fnmatchcase(cell.name, pat) for pat in only):
+            continue
         try:
             run = compose_cell(spec, cell, sweep_dir)
         except ConfigError as err:
@@ -65,9 +72,11 @@ def thread_budget(workers: int, cores: int | None = None) -> int:
 def _prepare(p: PlannedCell, restart_changed: bool) -> None:
     if p.state == "changed":
         if not restart_changed:
+            keys = config_differences((p.path / RUN_FILES["config"]).read_text(), p.config_yaml)
             raise ConfigError(
                 "sweep cell", p.cell.name,
-                f"{p.path} holds a run of another configuration; use --restart-changed to move it aside and re-run",
+                f"{p.path} holds a run of another configuration (differs in {', '.join(keys[:6])}); "
+                "use --restart-changed to move it aside and re-run",
             )
         p.path.rename(p.path.with_name(f"{p.path.name}.old-{time.strftime('%Y%m%d-%H%M%S')}"))
         p.state = "new"

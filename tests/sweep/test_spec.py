@@ -105,3 +105,37 @@ def test_cell_states(tmp_path):
     # Thread and progress settings differ per machine: never stale. Anything else is.
     assert cell_state(d, "seed: 0\ntrainer: {threads: 2, max_epochs: 2}\n") == "finished"
     assert cell_state(d, "seed: 0\ntrainer: {threads: 1, max_epochs: 3}\n") == "changed"
+    # A setting a newer optoenc added (absent from the stored config) does not make a finished cell stale.
+    assert cell_state(d, "seed: 0\ntrainer: {threads: 1, max_epochs: 2, logger: csv}\n") == "finished"
+
+
+def test_a_cell_trained_by_a_live_process_is_left_alone(tmp_path):
+    import os
+    import socket
+
+    d = tmp_path / "cell"
+    d.mkdir()
+    (d / "status.json").write_text(json.dumps({"state": "running", "pid": os.getpid(), "host": socket.gethostname()}))
+    assert cell_state(d) == "running"  # this test's own process: alive
+    dead = subprocess_pid_that_exited()
+    (d / "status.json").write_text(json.dumps({"state": "running", "pid": dead, "host": socket.gethostname()}))
+    assert cell_state(d) == "new"  # killed without a checkpoint: run it again
+
+
+def subprocess_pid_that_exited() -> int:
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    return int(proc.stdout)
+
+
+def test_only_selects_cells_by_glob(spec, tmp_path):
+    from optoenc.sweep import plan
+
+    planned = plan(spec, tmp_path / "out", only=["encoder=fixed_slm,*", "*augment=*"])
+    assert [p.cell.name for p in planned] == [
+        "encoder=fixed_slm,embedding=3x4,decoder=fcnn,seed=1",
+        "encoder=fixed_slm,embedding=3x4,decoder=fcnn,seed=2",
+        "encoder=lens,embedding=6x8,decoder=logistic,augment=rotate_shift",
+    ]
