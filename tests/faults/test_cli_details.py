@@ -55,8 +55,8 @@ def test_cli_encoder_name_conflict(tmp_path):
 
 
 def test_failed_start_leaves_no_stub_run_directory(tmp_path, tiny):
-    # the PSF file is read when the encoder is built: after the run directory used to be created with config.yaml
-    line = one_line_error(main("fit", *tiny, "--encoder.psf_path=/no/such/psf.tif"))
-    assert "encoder.psf_path" in line
+    # the dataset is read when the run is built: after the run directory used to be created with config.yaml
+    line = one_line_error(main("fit", *tiny, f"--dataset.root={tmp_path / 'no-mnist'}"))
+    assert "no-mnist" in line
     runs = tmp_path / "runs"
     assert not runs.exists() or list(runs.iterdir()) == []

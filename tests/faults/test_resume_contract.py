@@ -7,7 +7,7 @@ import shutil
 import pytest
 import torch
 
-from optoenc.callbacks import RunCheckpoint, read_metrics
+from optoenc.callbacks import read_metrics
 
 from faultkit import main, one_line_error, run
 
@@ -73,6 +73,8 @@ def test_test_with_a_different_decoder_setting_is_refused(trained):
 
 def test_checkpoint_state_survives_a_moved_folder(tmp_path):
     """Unit: Lightning's ModelCheckpoint drops best_model_score when the folder moved; RunCheckpoint re-roots it."""
+    from optoenc.callbacks import RunCheckpoint
+
     a, b = tmp_path / "a" / "checkpoints", tmp_path / "b" / "checkpoints"
     src = RunCheckpoint(dirpath=a, filename="best", monitor="val_acc", mode="max")
     src.best_model_score, src.best_model_path = torch.tensor(0.9), str(a / "best.ckpt")
