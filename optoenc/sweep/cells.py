@@ -13,8 +13,12 @@ __all__ = ["compose_cell", "cell_dir", "cell_state", "STATUS", "VOLATILE_KEYS", 
 
 #: The per-cell status file (``state``: running, finished, failed; ``error``; times).
 STATUS = "status.json"
-#: Settings a sweep sets per machine or worker; they never make a finished cell stale.
-VOLATILE_KEYS = ("trainer.threads", "trainer.progress")
+#: Settings of the machine or worker, not of the experiment (like a thread count, they change at most
+#: rounding): they never make a finished cell stale.
+VOLATILE_KEYS = ("trainer.threads", "trainer.progress", "trainer.accelerator")
+#: Values that mean the same run (``limit_*_batches``: 1.0 and null are both "all batches").
+_SAME = {"trainer.limit_train_batches": (1.0, None), "trainer.limit_val_batches": (1.0, None),
+         "trainer.limit_test_batches": (1.0, None)}
 
 
 def _value(v: Any) -> str:
@@ -85,7 +89,8 @@ def config_differences(stored: str, new: str) -> list[str]:
     cell stays finished when optoenc grows a setting.
     """
     a, b = comparable(stored), comparable(new)
-    return sorted(k for k in set(a) & set(b) if a[k] != b[k])
+    same = lambda k: a[k] == b[k] or (k in _SAME and a[k] in _SAME[k] and b[k] in _SAME[k])  # noqa: E731
+    return sorted(k for k in set(a) & set(b) if not same(k))
 
 
 def _alive(pid, host) -> bool:
