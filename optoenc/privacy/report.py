@@ -17,7 +17,6 @@ import math
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
-import torch
 
 from ..errors import ConfigError
 from ..rundir import RUN_FILES, atomic_write_text
