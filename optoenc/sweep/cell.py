@@ -37,8 +37,11 @@ def run_cell(path: str | Path, threads: int | None = None) -> dict:
         run = compose([OmegaConf.load(path / RUN_FILES["config"])], overrides)
         summary = fit(run, path, resume=checkpoint_path(path, "last").is_file())
     except BaseException as err:
+        from ..errors import Interrupted
+
         line = f"{type(err).__name__}: {err}".splitlines()[0] if str(err) else type(err).__name__
-        write_json(path / STATUS, {"state": "failed", "error": line, "started": started, "ended": time.time(),
+        state = "interrupted" if isinstance(err, (KeyboardInterrupt, Interrupted)) else "failed"
+        write_json(path / STATUS, {"state": state, "error": line, "started": started, "ended": time.time(),
                                    "traceback": traceback.format_exc(limit=8)})
         raise
     write_json(path / STATUS, {"state": "finished", "started": started, "ended": time.time()})
