@@ -190,27 +190,30 @@ def _encoder_class(name: str):
 def sweep_settings(encoder_name: str, base: str = "default") -> list[Setting]:
     """Each knob alone from ``base``: grid, dtype; for mask encoders also padding, wavelengths, PSF oversampling.
 
-    Points equal to ``base`` itself are left out (the preset row stands for them).
+    Every other knob keeps ``base``'s value (``psf_oversample`` included);
+    points equal to ``base`` itself are left out (the preset row stands for them).
     """
     b = preset_setting(base, encoder_name)
     mask = _is_mask_encoder(_encoder_class(encoder_name))
+    s = b.oversample
     out = []
     for g in SWEEP_GRIDS:
         if tuple(g) != b.grid:
-            out.append(Setting(f"grid={_grid_str(g)}", "sweep", tuple(g), b.dtype, b.padding, knob="grid", value=_grid_str(g)))
+            out.append(Setting(f"grid={_grid_str(g)}", "sweep", tuple(g), b.dtype, b.padding, knob="grid",
+                               value=_grid_str(g), oversample=s))
     if mask:
         for p in SWEEP_PADDINGS:
-            if p != b.padding:
-                out.append(Setting(f"padding={p}", "sweep", b.grid, b.dtype, p, knob="padding", value=p))
+            if p != str(b.padding):
+                out.append(Setting(f"padding={p}", "sweep", b.grid, b.dtype, p, knob="padding", value=p, oversample=s))
     for d in SWEEP_DTYPES:
         if d != b.dtype:
-            out.append(Setting(f"dtype={d}", "sweep", b.grid, d, b.padding, knob="dtype", value=d))
+            out.append(Setting(f"dtype={d}", "sweep", b.grid, d, b.padding, knob="dtype", value=d, oversample=s))
     if mask:
         out.append(Setting("wavelengths=1", "sweep", b.grid, b.dtype, b.padding, knob="wavelengths", value="1",
-                           wavelengths=1))
-        if b.oversample == 1:
-            out.append(Setting("psf_oversample=3", "sweep", b.grid, b.dtype, b.padding, knob="psf_oversample",
-                               value="3", oversample=3))
+                           wavelengths=1, oversample=s))
+        other = 3 if s == 1 else 1
+        out.append(Setting(f"psf_oversample={other}", "sweep", b.grid, b.dtype, b.padding, knob="psf_oversample",
+                           value=str(other), oversample=other))
     return out
 
 
