@@ -120,10 +120,16 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
         with torch.no_grad():
             emb = sample if precomputed else encode(encoder, sample, ebs)
         decoder.set_statistics(emb.mean().item(), emb.std().item())
-    # One process: whole-batch indexing. Distributed: per-example loaders for Lightning's samplers.
-    one = str(run.trainer.devices).strip() in ("1", "auto") and run.trainer.num_nodes == 1
+    # One process: whole-batch indexing. Distributed: per-example loaders for Lightning's samplers, and
+    # trainer.batch_size stays the examples per optimiser step: each of the W processes takes batch_size / W
+    # (gradients are averaged across them), so a run takes the same steps whatever W.
+    world = _world_size(run)
+    one = world == 1
+    if run.trainer.batch_size % world:
+        raise ConfigError("trainer.batch_size", run.trainer.batch_size,
+                          f"must divide evenly over the {world} training processes (devices x num_nodes)")
     loaders = {
-        "train": make_loader(*data["train"][:2], bs, shuffle=True, seed=run.seed, extra=data["train"][2:], batched=one),
+        "train": make_loader(*data["train"][:2], bs // world, shuffle=True, seed=run.seed, extra=data["train"][2:], batched=one),
         "val": make_loader(*data["val"][:2], ebs, shuffle=False, extra=data["val"][2:], batched=one),
         "test": make_loader(*data["test"][:2], ebs, shuffle=False, extra=data["test"][2:], batched=one),
     }
@@ -282,6 +288,13 @@ def _check_restore(module, ckpt: dict, path: Path) -> None:
 def _interrupted(run: RunConfig, run_dir: Path, trainer, err) -> str:
     """Mark the run directory as interrupted; the sentence saying where the run is and how to resume it."""
     return interrupted_note(run_dir, err.name, run.trainer.max_epochs, trainer.current_epoch)
+
+
+def _world_size(run: RunConfig) -> int:
+    """Training processes: devices per node (1 for 'auto', which is one device on a CPU) x num_nodes."""
+    d = _devices(run.trainer.devices)
+    per_node = d if isinstance(d, int) and d > 0 else (len(d) if isinstance(d, list) else 1)
+    return per_node * run.trainer.num_nodes
 
 
 def _devices(value: str) -> int | str | list[int]:
