@@ -26,13 +26,15 @@ def accuracy_vs_embedding(rows: list[dict[str, Any]], path: Path) -> Path | None
     if not agg or not all("x" in r["embedding"] for r in agg):
         return None
     plt, fig = _figure((5.2 * len(decoders), 4.2))
+    encoders = sorted({r["encoder"] for r in agg})
+    colour = {e: f"C{k % 10}" for k, e in enumerate(encoders)}  # one colour per encoder in every panel
     for i, dec in enumerate(decoders):
         ax = fig.add_subplot(1, len(decoders), i + 1)
         for enc in sorted({r["encoder"] for r in agg if r["decoder"] == dec}):
             pts = sorted((_pixels(r["embedding"]), r["test_acc"], r["test_acc_std"] or 0.0, r["embedding"])
                          for r in agg if r["decoder"] == dec and r["encoder"] == enc)
             ax.errorbar([p[0] for p in pts], [p[1] for p in pts], yerr=[p[2] for p in pts], marker="o",
-                        capsize=3, label=enc)
+                        capsize=3, label=enc, color=colour[enc])
         ticks = sorted({(_pixels(r["embedding"]), r["embedding"]) for r in agg})
         ax.set_xscale("log")
         ax.set_xticks([t[0] for t in ticks], [t[1] for t in ticks])
