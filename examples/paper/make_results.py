@@ -67,6 +67,17 @@ def _collect(spec_path: Path, sweep_dir: Path):
     return spec, planned, rows, sorted(sweep.aggregate(rows), key=_order)
 
 
+def _copy_cells(planned, out: Path) -> None:
+    """Each finished cell's small files (summary, metrics, config), never checkpoints."""
+    for p in planned:
+        if (p.path / "summary.json").is_file():
+            dest = out / p.cell.name
+            dest.mkdir(parents=True, exist_ok=True)
+            for name in ("summary.json", "metrics.csv", "config.yaml"):
+                if (p.path / name).is_file():
+                    shutil.copyfile(p.path / name, dest / name)
+
+
 def _learned_psfs(planned, out: Path) -> Path | None:
     from optoenc.pictures import _figure, _save
 
@@ -149,6 +160,7 @@ def main() -> None:
         for name in ("accuracy.png", "curves.png"):
             if (args.table1 / name).is_file():
                 shutil.copyfile(args.table1 / name, args.out / f"table1_{name}")
+        _copy_cells(planned, args.out / "sweep_cells" / "table1")
         _learned_psfs(planned, args.out / "learned_psfs.png")
         if not args.no_embeddings:
             _embeddings(planned, args.out / "embeddings.png")
@@ -159,6 +171,7 @@ def main() -> None:
         _, planned, rows, agg = _collect(here / "table3.yaml", args.table3)
         atomic_write_text(args.out / "table3.csv", _csv(agg, T3_COLUMNS))
         atomic_write_text(args.out / "table3.md", _md(agg, ("encoder", "embedding", "transform", "augment_mode")))
+        _copy_cells(planned, args.out / "sweep_cells" / "table3")
         if (args.table3 / "curves.png").is_file():
             shutil.copyfile(args.table3 / "curves.png", args.out / "table3_curves.png")
         done = sum(r["state"] == "finished" for r in rows)
