@@ -273,3 +273,14 @@ class Documented:
     @classmethod
     def summary(cls) -> str:
         return first_line(cls)
+
+
+def parse_hw(key: str, text: str, example: str = "28x28") -> tuple[int, int]:
+    """A command-line size ``"HxW"`` -> ``(H, W)`` positive integers, or a ConfigError naming ``key``."""
+    try:
+        h, w = (int(v) for v in str(text).lower().split("x"))
+        if h >= 1 and w >= 1:
+            return h, w
+    except ValueError:
+        pass
+    raise ConfigError(key, text, f"must be HxW with positive integers, e.g. {example}")

@@ -15,19 +15,14 @@ import sys
 from pathlib import Path
 
 from ..errors import ConfigError
+from ..settings import parse_hw
 
 __all__ = ["main", "parse_grid", "load_line"]
 
 
 def parse_grid(key: str, text: str) -> tuple[int, int]:
     """``"HxW"`` -> ``(H, W)``, or a ConfigError naming ``key``."""
-    try:
-        h, w = (int(v) for v in text.lower().split("x"))
-        if h >= 1 and w >= 1:
-            return h, w
-    except ValueError:
-        pass
-    raise ConfigError(key, text, "must be HxW with positive integers, e.g. 1520x2028")
+    return parse_hw(key, text, "1520x2028")
 
 
 def load_line(when: str) -> str:

@@ -7,6 +7,7 @@ import io
 import sys
 from pathlib import Path
 
+from ..settings import parse_hw
 from ..errors import ConfigError, DataError
 from ..rundir import atomic_write_bytes, write_json
 from .settings import ATTACKS, METHODS, ADMMConfig, LearnedConfig, PrivacyConfig, TikhonovConfig
@@ -71,13 +72,7 @@ def _names(text: str, allowed, key: str) -> list[str]:
 
 
 def _shape(text: str, key: str) -> tuple[int, int]:
-    try:
-        h, w = (int(v) for v in text.lower().split("x"))
-        if h >= 1 and w >= 1:
-            return h, w
-    except ValueError:
-        pass
-    raise ConfigError(key, text, "must be HxW with positive integers, e.g. 28x28")
+    return parse_hw(key, text)
 
 
 def _encoder(args, extra):
