@@ -31,7 +31,7 @@ _SPLIT_SALT = {"train": 1, "val": 2, "test": 3}
 def draws(augs, n: int, seed: int, split: str) -> torch.Tensor:
     """``(n, n_random)`` float64 uniforms for ``split``: a fixed function of (seed, split, example index)."""
     for a in augs:
-        if not getattr(type(a), "n_random", 0) and type(a).apply is not None:
+        if not getattr(type(a), "n_random", 0):
             raise ConfigError(
                 "trainer.augment_draw", "once",
                 f"augmentation {a.name!r} declares no n_random (its randomness cannot be stored); use 'epoch'",

@@ -382,7 +382,7 @@ def cmd_sweep(args, extra) -> int:
         _quiet_lightning()
         from tqdm.auto import tqdm
 
-        todo = [p for p in planned if p.todo or p.state == "changed"]
+        todo = [p for p in planned if p.todo]
         print(f"sweep {spec.name}: {len(planned)} cells, {len(todo)} to run -> {out}", file=sys.stderr)
         with tqdm(total=len(todo), desc="cells", unit="cell", disable=not sys.stderr.isatty()) as bar:
             def done(p, ok, err):

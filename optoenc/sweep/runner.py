@@ -38,7 +38,8 @@ class PlannedCell:
 
     @property
     def todo(self) -> bool:
-        return self.state in ("new", "interrupted", "failed")
+        """Whether a sweep run picks it up (a changed cell is refused there unless restarted)."""
+        return self.state in ("new", "interrupted", "failed", "changed")
 
 
 def plan(spec: SweepSpec, sweep_dir: str | Path, only: list[str] | None = None) -> list[PlannedCell]:
@@ -137,7 +138,7 @@ def run(
         raise ConfigError("--executor", executor, f"one of {', '.join(EXECUTORS)}")
     if workers < 1:
         raise ConfigError("--workers", workers, "must be >= 1")
-    todo = [p for p in planned if p.todo or p.state == "changed"]
+    todo = [p for p in planned if p.todo]
     for p in todo:
         _prepare(p, restart_changed)
     threads = thread_budget(workers)
