@@ -35,6 +35,12 @@ class SensorConfig(Settings):
     pixel_pitch: float = setting(devices.IMX477_PITCH, "physical sensor pixel pitch", unit="m", gt=0)
     resolution: tuple[int, int] = setting(devices.IMX477_RESOLUTION, "physical sensor pixels (rows, columns)", ge=1)
     embedding: tuple[int, int] = setting(devices.EMBEDDINGS[0], "embedding size (rows, columns) after pixel integration", ge=1)
+    sampling: str = setting(
+        "box",
+        "how a sensor pixel reads the image: 'box' integrates its area (a physical pixel); 'point' samples its "
+        "centre bilinearly without antialiasing (the paper's published pipeline; fine structure aliases)",
+        choices=("box", "point"),
+    )
     color: str = setting("gray", "sensor colour: 'gray' (one channel) or 'rgb'", choices=("gray", "rgb"))
     noise: str = setting("gaussian", "noise model", choices=("gaussian", "poisson", "none"))
     snr_db: Optional[float] = setting(devices.SNR_DB, "SNR of the gaussian noise (null: no noise)", unit="dB", ge=-100, le=300)

@@ -36,6 +36,9 @@ from .optics._common import next_fast_size
 __all__ = [
     "area_matrix",
     "box_matrix",
+    "point_matrix",
+    "sampling_matrix",
+    "SAMPLINGS",
     "placement_matrices",
     "place",
     "fft_convolve",
@@ -84,6 +87,41 @@ def box_matrix(n_grid: int, n_out: int, dtype=torch.float64) -> torch.Tensor:
         raise ConfigError("embedding", n_out, f"must be between 1 and the simulation grid size {n_grid}")
     m = area_matrix(n_grid, n_out, 0.0, float(n_out), dtype=dtype)  # grid cells in output units
     return m / m.sum(dim=1, keepdim=True)
+
+
+def point_matrix(n_grid: int, n_out: int, dtype=torch.float64) -> torch.Tensor:
+    """Point sampling along one axis: ``(n_out, n_grid)`` bilinear weights, no antialiasing.
+
+    Output pixel ``a`` reads the grid at its centre, source coordinate
+    ``(a + 0.5) * n_grid / n_out - 0.5`` (clamped to the grid), by linear
+    interpolation between the two nearest grid samples: exactly
+    ``torch.nn.functional.interpolate(mode="bilinear", align_corners=False,
+    antialias=False)``, the paper's published downsampling. It reads 2 of
+    every ``n_grid / n_out`` samples: fine structure aliases instead of
+    averaging out, which no physical pixel does (see :func:`box_matrix`).
+    """
+    if not 1 <= n_out <= n_grid:
+        raise ConfigError("embedding", n_out, f"must be between 1 and the simulation grid size {n_grid}")
+    src = ((torch.arange(n_out, dtype=dtype) + 0.5) * (n_grid / n_out) - 0.5).clamp_min(0)
+    lo = src.floor().long().clamp_max(n_grid - 1)
+    hi = (lo + 1).clamp_max(n_grid - 1)
+    frac = src - lo.to(dtype)
+    m = torch.zeros(n_out, n_grid, dtype=dtype)
+    rows = torch.arange(n_out)
+    m.index_put_((rows, lo), 1 - frac, accumulate=True)
+    m.index_put_((rows, hi), frac, accumulate=True)
+    return m
+
+
+#: How a sensor pixel reads the image on the grid (``sensor.sampling``).
+SAMPLINGS = {"box": box_matrix, "point": point_matrix}
+
+
+def sampling_matrix(n_grid: int, n_out: int, sampling: str = "box", dtype=torch.float64) -> torch.Tensor:
+    """The ``(n_out, n_grid)`` matrix of ``sampling`` (``'box'``: :func:`box_matrix`; ``'point'``: :func:`point_matrix`)."""
+    if sampling not in SAMPLINGS:
+        raise ConfigError("sensor.sampling", sampling, f"one of {', '.join(SAMPLINGS)}")
+    return SAMPLINGS[sampling](n_grid, n_out, dtype=dtype)
 
 
 def subcell_psf(psf: torch.Tensor, sub: int) -> torch.Tensor:
@@ -166,11 +204,11 @@ def fft_convolve(image: torch.Tensor, psf: torch.Tensor) -> torch.Tensor:
     return full[..., Hp // 2 : Hp // 2 + H, Wp // 2 : Wp // 2 + W]
 
 
-def integrate(image: torch.Tensor, out_shape: tuple[int, int]) -> torch.Tensor:
-    """Pixel integration: average ``(..., H, W)`` over the ``out_shape`` sensor pixels."""
+def integrate(image: torch.Tensor, out_shape: tuple[int, int], sampling: str = "box") -> torch.Tensor:
+    """Pixel integration: average ``(..., H, W)`` over the ``out_shape`` sensor pixels (or point-sample them)."""
     H, W = image.shape[-2:]
-    sy = box_matrix(H, out_shape[0]).to(image.dtype)
-    sx = box_matrix(W, out_shape[1]).to(image.dtype)
+    sy = sampling_matrix(H, out_shape[0], sampling).to(image.dtype)
+    sx = sampling_matrix(W, out_shape[1], sampling).to(image.dtype)
     return sy @ image @ sx.T
 
 

@@ -243,7 +243,7 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
 
     # ----------------------------------------------------------------- imaging
     def _correlations(self, scene_shape: tuple[int, int], height_px: float, device) -> tuple[torch.Tensor, torch.Tensor]:
-        key = ("corr", scene_shape, round(height_px, 9), self.optics_dtype, str(device))
+        key = ("corr", scene_shape, round(height_px, 9), self.optics_dtype, str(device), self.sensor.sampling)
         if key not in self._op_cache:
             H, W = self.geometry.grid
             a, b = self.geometry.embedding
@@ -251,8 +251,9 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
             # s > 1: the scene is placed and integrated on an s-times finer grid while the
             # PSF's grid values are cell averages: the scene keeps its sub-pixel structure.
             py, px = imaging.placement_matrices(scene_shape, (H * s, W * s), height_px * s, pixel_aspect=self.pixel_aspect)
-            ry = imaging.correlation_tensor(imaging.box_matrix(H * s, a), py, H, sub=s)
-            rx = imaging.correlation_tensor(imaging.box_matrix(W * s, b), px, W, sub=s)
+            sampling = self.sensor.sampling
+            ry = imaging.correlation_tensor(imaging.sampling_matrix(H * s, a, sampling), py, H, sub=s)
+            rx = imaging.correlation_tensor(imaging.sampling_matrix(W * s, b, sampling), px, W, sub=s)
             # Bounded: a learned d2 changes the height every step.
             stale = [k for k in self._op_cache if k[0] == "corr"]
             for k in stale[: max(0, len(stale) - _MAX_GEOMETRIES + 1)]:
@@ -313,7 +314,7 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
             grid = tuple(n * s for n in self.geometry.grid)
             placed = imaging.place(x, grid, self.object_height_px(height) * s, pixel_aspect=self.pixel_aspect)
             psf = imaging.subcell_psf(self.psf(), s)
-            out = imaging.integrate(imaging.fft_convolve(placed, psf[None]), (a, b))
+            out = imaging.integrate(imaging.fft_convolve(placed, psf[None]), (a, b), self.sensor.sampling)
         else:
             raise ConfigError("method", method, "one of 'auto', 'operator', 'direct'")
         return out.to(scene.dtype)
