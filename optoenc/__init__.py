@@ -29,7 +29,7 @@ _LAZY = {
     "Knobs": "optoenc.geometry",
     "Settings": "optoenc.settings",
     "setting": "optoenc.settings",
-    "hookimpl": "optoenc.hookspecs",
+    "hookimpl": "optoenc.plugins.hookspecs",
     "get_registry": "optoenc.plugins",
     "register_plugin": "optoenc.plugins",
     "ConfigError": "optoenc.errors",

@@ -323,5 +323,5 @@ class Perspective(Augmentation):
         return torch.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0), state
 
 
-#: The built-in augmentations, registered by :mod:`optoenc.builtins`.
+#: The built-in augmentations, registered by :mod:`optoenc.plugins.builtins`.
 BUILTIN = (Shift, Rescale, Rotate, Perspective)

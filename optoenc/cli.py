@@ -14,11 +14,11 @@ from typing import Sequence
 
 from . import __version__
 from .errors import ConfigError, Interrupted, OptoencError
-from .registry import KINDS
+from .plugins.registry import KINDS
 
 __all__ = ["main"]
 
-#: Listing command -> plugin kind (`optoenc encoders`, ...), one per kind of :data:`optoenc.registry.KINDS`.
+#: Listing command -> plugin kind (`optoenc encoders`, ...), one per kind of :data:`optoenc.plugins.registry.KINDS`.
 #: Set by rank 0 of ``optoenc fit`` for the DDP workers Lightning launches with the same command line.
 _RUN_DIR_ENV = "OPTOENC_RUN_DIR"
 
@@ -254,7 +254,7 @@ def cmd_export(args, extra) -> int:
 
 
 def cmd_list(args, extra) -> int:
-    from . import listing
+    from .plugins import listing
 
     kind = KIND_COMMANDS[args.command]
     print(listing.show(kind, args.pattern, as_json=args.json))
@@ -262,7 +262,7 @@ def cmd_list(args, extra) -> int:
 
 
 def cmd_plugins(args, extra) -> int:
-    from . import listing
+    from .plugins import listing
 
     print(listing.plugins(as_json=args.json))
     return 0

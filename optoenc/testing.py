@@ -1014,7 +1014,7 @@ AUGMENTATION_CHECKS: dict[str, Callable[..., str | None]] = {
 
 
 # --------------------------------------------------------------------------- the kits
-#: Plugin kind -> its kit (the kinds of :data:`optoenc.registry.KINDS`).
+#: Plugin kind -> its kit (the kinds of :data:`optoenc.plugins.registry.KINDS`).
 KITS: dict[str, Kit] = {
     "encoder": Kit("encoder", "encoder_cls", ENCODER_CHECKS, _SETUP_KEYS),
     "decoder": Kit("decoder", "decoder_cls", DECODER_CHECKS, _DECODER_KEYS),

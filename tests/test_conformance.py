@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from optoenc.plugins import get_registry
-from optoenc.registry import KINDS
+from optoenc.plugins.registry import KINDS
 from optoenc.testing import (
     CHECKS, KITS, DecoderConformance, EncoderConformance, SMALL_SETUP, check_dataset, check_decoder, check_encoder,
 )

@@ -10,7 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from optoenc import listing, plugins
+from optoenc import plugins
+from optoenc.plugins import listing
 
 PLUGIN_DIR = Path(__file__).resolve().parents[1] / "plugins" / "optoenc-example"
 

@@ -6,8 +6,8 @@ import pytest
 import torch
 
 import optoenc
-from optoenc import hookspecs
-from optoenc.registry import KINDS
+from optoenc.plugins import hookspecs
+from optoenc.plugins.registry import KINDS
 
 
 def test_one_list_of_plugin_kinds_has_one_hook_each():

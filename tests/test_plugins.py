@@ -10,9 +10,10 @@ import types
 
 import pytest
 
-from optoenc import listing, plugins
+from optoenc import plugins
+from optoenc.plugins import host, listing
 from optoenc.errors import PluginError
-from optoenc.hookspecs import hookimpl
+from optoenc.plugins.hookspecs import hookimpl
 from optoenc.plugins import STRICT_ENV, PluginHost, get_host, get_registry, register_plugin
 
 
@@ -120,30 +121,30 @@ def test_import_optoenc_is_light():
     code = (
         "import optoenc, sys, json; "
         "print(json.dumps({'torch': 'torch' in sys.modules, 'pluggy': 'pluggy' in sys.modules, "
-        "'plugins': [m for m in sys.modules if m.startswith('optoenc_example') or m == 'optoenc.builtins']}))"
+        "'plugins': [m for m in sys.modules if m.startswith('optoenc_example') or m in ('optoenc.builtins', 'optoenc.plugins.builtins')]}))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert json.loads(out) == {"torch": False, "pluggy": False, "plugins": []}
 
 
 def test_plugins_load_on_first_use_only():
-    assert plugins._host is None  # reset() by the fixture; nothing loads until a registry is asked for
+    assert host._host is None  # reset() by the fixture; nothing loads until a registry is asked for
     get_registry("decoder")
-    assert plugins._host is not None and get_host() is plugins._host
+    assert host._host is not None and get_host() is host._host
 
 
 # --- built-ins go through the same hooks -------------------------------------------------
 def test_builtins_are_registered_through_the_hooks():
     host = get_host()
     builtins = host.plugins[0]
-    assert builtins.name == "builtins" and builtins.ok and builtins.module == "optoenc.builtins"
+    assert builtins.name == "builtins" and builtins.ok and builtins.module == "optoenc.plugins.builtins"
     assert set(builtins.registered) == {"encoder", "decoder", "augmentation", "dataset"}
     assert "diffuser" in builtins.registered["encoder"]
     assert {"logistic", "fcnn"} <= set(builtins.registered["decoder"])
     assert builtins.registered["dataset"] == ["mnist"]
     assert get_registry("encoder").source("diffuser") == "builtins"
     assert host.pm.has_plugin("builtins")
-    # the hook implementations come from optoenc.builtins, like any third-party plugin's
+    # the hook implementations come from optoenc.plugins.builtins, like any third-party plugin's
     impls = host.pm.hook.optoenc_register_encoders.get_hookimpls()
     assert "builtins" in [i.plugin_name for i in impls]  # installed third-party plugins may sit beside it
 

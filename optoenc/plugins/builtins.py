@@ -7,11 +7,11 @@ from .hookspecs import hookimpl
 
 @hookimpl
 def optoenc_register_encoders(registry):
-    from .encoders.coded_aperture import CodedAperture
-    from .encoders.diffuser import Diffuser
-    from .encoders.lens import Lens
-    from .encoders.phase_mask import LearnedPhaseMask, PhaseMask
-    from .encoders.slm import FixedSLM, LearnedSLM
+    from ..encoders.coded_aperture import CodedAperture
+    from ..encoders.diffuser import Diffuser
+    from ..encoders.lens import Lens
+    from ..encoders.phase_mask import LearnedPhaseMask, PhaseMask
+    from ..encoders.slm import FixedSLM, LearnedSLM
 
     for cls in (Lens, CodedAperture, Diffuser, FixedSLM, LearnedSLM, PhaseMask, LearnedPhaseMask):
         registry.add(cls)
@@ -19,7 +19,7 @@ def optoenc_register_encoders(registry):
 
 @hookimpl
 def optoenc_register_decoders(registry):
-    from .decoders import FCNN, Logistic
+    from ..decoders import FCNN, Logistic
 
     for cls in (Logistic, FCNN):
         registry.add(cls)
@@ -27,7 +27,7 @@ def optoenc_register_decoders(registry):
 
 @hookimpl
 def optoenc_register_augmentations(registry):
-    from . import augment
+    from .. import augment
 
     for cls in augment.BUILTIN:
         registry.add(cls)
@@ -35,6 +35,6 @@ def optoenc_register_augmentations(registry):
 
 @hookimpl
 def optoenc_register_datasets(registry):
-    from .datasets.mnist import MNIST
+    from ..datasets.mnist import MNIST
 
     registry.add(MNIST)

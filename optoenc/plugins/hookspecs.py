@@ -8,7 +8,7 @@ A plugin is a module (or object) with functions decorated by
 
 Each hook receives a registrar; call ``registry.add(cls)`` for each class.
 optoenc registers its own built-ins through these same hooks
-(:mod:`optoenc.builtins`). The classes' interfaces: docs/plugin-authoring.md;
+(:mod:`optoenc.plugins.builtins`). The classes' interfaces: docs/plugin-authoring.md;
 their conformance kits: :mod:`optoenc.testing`.
 """
 
@@ -47,5 +47,5 @@ def optoenc_register_datasets(registry):
 
 
 #: hook name -> registry kind, in registration order: one hook per kind of
-#: :data:`optoenc.registry.KINDS` (the one list of plugin kinds).
+#: :data:`optoenc.plugins.registry.KINDS` (the one list of plugin kinds).
 HOOKS = {f"optoenc_register_{kind}s": kind for kind in KINDS}

@@ -18,8 +18,8 @@ from typing import Any
 
 import pluggy
 
+from ..errors import PluginError
 from . import hookspecs
-from .errors import PluginError
 from .registry import KINDS, Registrar, Registry
 
 __all__ = ["PluginInfo", "PluginHost", "get_host", "get_registry", "register_plugin", "reset", "STRICT_ENV"]
@@ -27,7 +27,9 @@ __all__ = ["PluginInfo", "PluginHost", "get_host", "get_registry", "register_plu
 #: Environment variable: when true, a plugin failure raises instead of being recorded.
 STRICT_ENV = "OPTOENC_STRICT_PLUGINS"
 ENTRY_POINT_GROUP = "optoenc"
-BUILTINS = "optoenc.builtins"
+BUILTINS = "optoenc.plugins.builtins"
+#: Entry-point values that name the built-ins (the old module path, in installs made before the move).
+_BUILTIN_VALUES = (BUILTINS, "optoenc.builtins")
 
 
 @dataclass
@@ -58,7 +60,7 @@ class PluginHost:
         self.add(importlib.import_module(BUILTINS), name="builtins", distribution="optoenc")
         if entry_points:
             for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
-                if ep.value == BUILTINS:
+                if ep.value in _BUILTIN_VALUES:
                     continue
                 dist = ep.dist.name if ep.dist is not None else ""
                 version = ep.dist.version if ep.dist is not None else ""

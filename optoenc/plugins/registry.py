@@ -12,7 +12,7 @@ import difflib
 import re
 from typing import Generic, Iterator, TypeVar
 
-from .errors import PluginError
+from ..errors import PluginError
 
 __all__ = ["Registry", "Registrar", "KINDS"]
 
