@@ -25,6 +25,7 @@ from . import constants as K
 from . import slm_panel
 from .base import EncoderConfig
 from .mask import MaskEncoder
+from .patterns import PatternSet
 
 __all__ = ["SLMConfig", "FixedSLM", "LearnedSLMConfig", "LearnedSLM", "panel_image"]
 
@@ -50,6 +51,10 @@ class SLMConfig(EncoderConfig):
 @dataclass
 class LearnedSLMConfig(SLMConfig):
     learn_d2: bool = setting(False, "also learn d2 (d2 = d2_init * exp(s), s learned)")
+    patterns: int = setting(
+        1, "K patterns learned jointly with one decoder; each capture displays one, drawn at random "
+        "(variable-pattern defence, docs/privacy.md); 1: a single pattern", ge=1, le=64
+    )
 
 
 class _SLMBase(MaskEncoder):
@@ -72,12 +77,18 @@ class _SLMBase(MaskEncoder):
         levels = slm_panel.level_counts(self.config.quantize, self.block)
         self._levels = None if levels is None else torch.from_numpy(levels)[:, None]
 
-    def initial_pattern(self) -> torch.Tensor:
-        """``(rows, cols)`` float64 block amplitudes from ``pattern_path`` or the seeded random draw."""
+    def initial_pattern(self, count: int = 1) -> torch.Tensor:
+        """``(rows, cols)`` float64 block amplitudes from ``pattern_path`` or the seeded random draw.
+
+        ``count > 1``: ``(count, rows, cols)`` seeded random patterns, the first one the ``count = 1`` pattern.
+        """
         shape = self.block.shape
         path = self.config.pattern_path
         if path is None:
-            return torch.from_numpy(np.random.default_rng(self.config.seed).uniform(0.0, 1.0, shape))
+            draw = np.random.default_rng(self.config.seed).uniform(0.0, 1.0, (count, *shape) if count > 1 else shape)
+            return torch.from_numpy(draw)
+        if count > 1:
+            raise ConfigError("encoder.pattern_path", path, f"is one pattern; leave it null with encoder.patterns = {count}")
         if Path(path).suffix.lower() != ".npy" or not Path(path).is_file():
             raise ConfigError("encoder.pattern_path", path, "file not found (must be an existing .npy file)")
         try:
@@ -137,7 +148,7 @@ class FixedSLM(_SLMBase):
         return self._quantize(self.pattern)
 
 
-class LearnedSLM(_SLMBase):
+class LearnedSLM(PatternSet, _SLMBase):
     """ST7735R LCD whose 1122 sub-pixel amplitudes (and optionally d2) are learned end to end.
 
     Parameterisation: amplitude ``w = sigmoid(logit)`` of an unconstrained
@@ -147,7 +158,9 @@ class LearnedSLM(_SLMBase):
     levels with a straight-through gradient. With ``learn_d2``,
     ``d2 = config.d2 * exp(s)`` with a learned scalar ``s`` (always positive).
     The PSF is recomputed once per optimiser step (the base class caches it
-    on the parameter versions).
+    on the parameter versions). With ``patterns = K > 1`` the logits are
+    ``(K, rows, cols)``, pattern 0 being the ``K = 1`` pattern, and each
+    capture displays one of them (:class:`~optoenc.encoders.patterns.PatternSet`).
     """
 
     name = "learned_slm"
@@ -157,7 +170,8 @@ class LearnedSLM(_SLMBase):
 
     def __init__(self, config=None, **kw):
         super().__init__(config, **kw)
-        p = self.initial_pattern().clamp(0.01, 0.99)
+        self.patterns = int(self.config.patterns)
+        p = self.initial_pattern(self.patterns).clamp(0.01, 0.99)
         # float64 logits: the gradient w (1 - w) stays non-zero up to |logit| ~ 36 (float32: ~16).
         self.logits = nn.Parameter(torch.log(p / (1 - p)))
         if self.config.learn_d2:
@@ -166,7 +180,8 @@ class LearnedSLM(_SLMBase):
             self.log_d2_scale = None
 
     def weights(self) -> torch.Tensor:
-        return self._quantize(torch.sigmoid(self.logits))
+        logits = self.logits if self.patterns == 1 else self.logits[self.active_pattern]
+        return self._quantize(torch.sigmoid(logits))
 
     def d2_tensor(self) -> torch.Tensor | float:
         if getattr(self, "log_d2_scale", None) is None:  # also while the base class initialises

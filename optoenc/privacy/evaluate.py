@@ -20,7 +20,7 @@ from .settings import PrivacyConfig
 from . import metrics
 from .admm import ADMMConfig, admm
 from .attacks import ATTACKS, LearnedConfig, PLAINTEXT_RIDGE, estimate_operator, train_inverter
-from .operators import from_encoder
+from . import patterns
 from .reader import reader
 from .tikhonov import TikhonovConfig, pseudo_inverse
 
@@ -80,10 +80,14 @@ def evaluate(
     n = min(cfg.count, len(x_pool))
     x, labels = x_pool[:n].double(), y_pool[:n]
     scene_shape = tuple(x.shape[-2:])
-    op = from_encoder(encoder, scene_shape, scene_channels=x.shape[1])
+    # One operator per displayed pattern (one for every single-pattern encoder), and the pattern of
+    # each capture (all 0 then): see optoenc.privacy.patterns for the threat models.
+    ops = patterns.operators(encoder, scene_shape, scene_channels=x.shape[1])
+    K = len(ops)
     gen = lambda k: torch.Generator().manual_seed(cfg.seed * 1009 + k)  # noqa: E731
     noise = _noise(encoder)
-    y = noise(op.forward(x), gen(1))
+    shown = patterns.draw(n, K, gen(3))
+    y = noise(patterns.capture(ops, x, shown), gen(1))
     gallery = metrics.reid_gallery(labels, y_pool, torch.arange(n), cfg.gallery, cfg.seed)
     say("reader")
     read = reader(splits, dataset_token(splits), cache_root, seed=cfg.seed)
@@ -112,19 +116,25 @@ def evaluate(
     for name in attacks:
         say(name)
         if name == "admm":
-            measure(name, admm(op, y, admm_config))
+            measure(name, patterns.grouped(lambda op, v: admm(op, v, admm_config), ops, y, shown))
         elif name == "pinv":
-            measure(name, pseudo_inverse(op, y, (linear_config or TikhonovConfig()).rcond))
-        elif name == "learned":
+            rcond = (linear_config or TikhonovConfig()).rcond
+            measure(name, patterns.grouped(lambda op, v: pseudo_inverse(op, v, rcond), ops, y, shown))
+        elif name in ("learned", "learned_one"):
+            if name == "learned_one" and K == 1:
+                continue  # one pattern: the same attacker as "learned"
             lc = learned_config or LearnedConfig()
             scenes = xt[: lc.pairs]
-            model = train_inverter(op.forward(scenes.double()), scenes, noise, lc, seed=cfg.seed)
+            # learned: pairs captured with the patterns the camera drew; learned_one: through pattern 0 only.
+            seen = patterns.draw(len(scenes), K if name == "learned" else 1, gen(4))
+            model = train_inverter(patterns.capture(ops, scenes.double(), seen), scenes, noise, lc, seed=cfg.seed)
             with torch.no_grad():
                 measure(name, model(y))
         elif name == "plaintext":
             for k in cfg.plaintext_n:
                 k = min(int(k), len(xt))
                 known = xt[-k:].double()  # the attacker's pairs: training scenes through the camera, noise included
-                est = estimate_operator(known, noise(op.forward(known), gen(2)), PLAINTEXT_RIDGE)
+                clean = patterns.capture(ops, known, patterns.draw(k, K, gen(5)))
+                est = estimate_operator(known, noise(clean, gen(2)), PLAINTEXT_RIDGE)
                 measure(name, admm(est, y, admm_config), n_pairs=k)
     return Result(rows, x[: cfg.examples].float(), labels[: cfg.examples], y[: cfg.examples].float(), examples)

@@ -12,7 +12,7 @@ from ..settings import Settings, setting
 __all__ = ["ADMMConfig", "TikhonovConfig", "LearnedConfig", "PrivacyConfig", "ATTACKS", "METHODS"]
 
 #: Attack names, in table order.
-ATTACKS = ("admm", "learned", "plaintext", "pinv")
+ATTACKS = ("admm", "learned", "plaintext", "pinv", "learned_one")
 #: Reconstruction methods of `optoenc reconstruct`.
 METHODS = ("admm", "tikhonov", "pinv")
 
