@@ -1,6 +1,11 @@
 """Write docs/results/ from the paper sweeps: tables (CSV, markdown), curves, learned PSFs, example embeddings.
 
-    python examples/paper/make_results.py --table1 sweeps/table1 --table3 sweeps/table3 --out docs/results
+    python examples/paper/make_results.py --table1 sweeps/table1 --table3 sweeps/table3 \
+        --sampling sweeps/sampling --out docs/results
+
+Table 2 (relative drop from 24x32 to 3x4) is derived from Table 1, Table 4 (relative drop under each
+transform) from Tables 1 and 3; the paper's own drops are computed the same way from its Tables 1 and 3.
+``--sampling`` adds the sensor-model check (examples/paper/sampling.yaml) beside Table 1's cells.
 
 Each sweep is run first with ``optoenc sweep examples/paper/table1.yaml`` (and table3.yaml); missing
 or unfinished cells are left out of the tables (their count is printed), so this can be re-run as
@@ -24,6 +29,10 @@ T1_COLUMNS = ("encoder", "embedding", "decoder", "seeds", "test_acc", "test_acc_
               "reference_test_acc", "paper_acc", "diff_vs_paper")
 T3_COLUMNS = ("encoder", "embedding", "decoder", "transform", "augment_mode", "seeds", "test_acc", "test_acc_std",
               "best_test_acc", "paper_acc", "diff_vs_paper")
+T2_COLUMNS = ("encoder", "decoder", "drop", "paper_drop")
+T4_COLUMNS = ("encoder", "embedding", "transform", "augment_mode", "drop", "paper_drop")
+TS_COLUMNS = ("encoder", "embedding", "paper_acc", "box_test_acc", "point_test_acc", "point_best_test_acc",
+              "point_minus_box")
 ENCODERS = ("lens", "coded_aperture", "diffuser", "fixed_slm", "learned_slm", "learned_phase_mask")
 EMBEDDINGS = ("24x32", "12x16", "6x8", "3x4")
 
@@ -56,6 +65,60 @@ def _md(rows, keys) -> str:
         lines.append("| " + " | ".join([*(str(r[k]) for k in keys), _fmt(r["paper_acc"]),
                                          _fmt(r["test_acc"], r["test_acc_std"]), _fmt(r["best_test_acc"]),
                                          _fmt(r["diff_vs_paper"]), str(r["seeds"])]) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _drop(top, low):
+    """Relative drop in percent, ``100 (top - low) / top``; None when either is missing."""
+    return None if top is None or low is None or not top else round(100 * (top - low) / top, 2)
+
+
+def _table2(agg) -> list[dict]:
+    """Relative drop from 24x32 to 3x4 per encoder and decoder (the paper's Table 2), ours and the paper's."""
+    by = {(r["encoder"], r["embedding"], r["decoder"]): r for r in agg}
+    out = []
+    for (enc, emb, dec), top in by.items():
+        low = by.get((enc, "3x4", dec))
+        if emb != "24x32" or low is None:
+            continue
+        out.append({"encoder": enc, "decoder": dec, "drop": _drop(top["test_acc"], low["test_acc"]),
+                    "paper_drop": _drop(top["paper_acc"], low["paper_acc"])})
+    return sorted(out, key=lambda r: (r["decoder"], _order({**r, "embedding": ""})))
+
+
+def _table4(agg1, agg3) -> list[dict]:
+    """Relative drop under each transform (the paper's Table 4): Table 3's cells against Table 1's FCNN cell."""
+    orig = {(r["encoder"], r["embedding"]): r for r in agg1 if r["decoder"] == "fcnn"}
+    out = []
+    for r in agg3:
+        o = orig.get((r["encoder"], r["embedding"]))
+        if o is None:
+            continue
+        out.append({"encoder": r["encoder"], "embedding": r["embedding"], "transform": r.get("transform"),
+                    "augment_mode": r.get("augment_mode"), "drop": _drop(o["test_acc"], r["test_acc"]),
+                    "paper_drop": _drop(o["paper_acc"], r["paper_acc"])})
+    return out
+
+
+def _sampling(agg1, agg_point) -> list[dict]:
+    """The sensor-model check: each fixed-encoder FCNN cell with physical pixels (Table 1) and point samples."""
+    box = {(r["encoder"], r["embedding"]): r for r in agg1 if r["decoder"] == "fcnn"}
+    out = []
+    for r in agg_point:
+        b = box.get((r["encoder"], r["embedding"]), {})
+        out.append({"encoder": r["encoder"], "embedding": r["embedding"], "paper_acc": r["paper_acc"],
+                    "box_test_acc": b.get("test_acc"), "point_test_acc": r["test_acc"],
+                    "point_best_test_acc": r["best_test_acc"],
+                    "point_minus_box": None if b.get("test_acc") is None or r["test_acc"] is None
+                    else round(r["test_acc"] - b["test_acc"], 2)})
+    return sorted(out, key=_order)
+
+
+def _plain_md(rows, columns) -> str:
+    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    for r in rows:
+        lines.append("| " + " | ".join(_fmt(r[k]) if isinstance(r.get(k), float) or r.get(k) is None
+                                       else str(r[k]) for k in columns) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -149,12 +212,18 @@ def main() -> None:
     here = Path(__file__).parent
     ap.add_argument("--table1", type=Path, default=Path("sweeps/table1"))
     ap.add_argument("--table3", type=Path, default=Path("sweeps/table3"))
+    ap.add_argument("--sampling", type=Path, default=Path("sweeps/sampling"))
     ap.add_argument("--out", type=Path, default=Path("docs/results"))
     ap.add_argument("--no-embeddings", action="store_true", help="skip the example-embedding figure")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
+    agg1 = []
     if (args.table1 / "cells").is_dir():
         _, planned, rows, agg = _collect(here / "table1.yaml", args.table1)
+        agg1 = agg
+        t2 = _table2(agg)
+        atomic_write_text(args.out / "table2.csv", _csv(t2, T2_COLUMNS))
+        atomic_write_text(args.out / "table2.md", _plain_md(t2, T2_COLUMNS))
         atomic_write_text(args.out / "table1.csv", _csv(agg, T1_COLUMNS))
         atomic_write_text(args.out / "table1.md", _md(agg, ("encoder", "embedding", "decoder")))
         for name in ("accuracy.png", "curves.png"):
@@ -171,11 +240,21 @@ def main() -> None:
         _, planned, rows, agg = _collect(here / "table3.yaml", args.table3)
         atomic_write_text(args.out / "table3.csv", _csv(agg, T3_COLUMNS))
         atomic_write_text(args.out / "table3.md", _md(agg, ("encoder", "embedding", "transform", "augment_mode")))
+        t4 = _table4(agg1, agg)
+        atomic_write_text(args.out / "table4.csv", _csv(t4, T4_COLUMNS))
+        atomic_write_text(args.out / "table4.md", _plain_md(t4, T4_COLUMNS))
         _copy_cells(planned, args.out / "sweep_cells" / "table3")
         if (args.table3 / "curves.png").is_file():
             shutil.copyfile(args.table3 / "curves.png", args.out / "table3_curves.png")
         done = sum(r["state"] == "finished" for r in rows)
         print(f"table3: {done} of {len(rows)} cells finished")
+    if (args.sampling / "cells").is_dir():
+        _, planned, rows, agg = _collect(here / "sampling.yaml", args.sampling)
+        ts = _sampling(agg1, agg)
+        atomic_write_text(args.out / "sampling.csv", _csv(ts, TS_COLUMNS))
+        atomic_write_text(args.out / "sampling.md", _plain_md(ts, TS_COLUMNS))
+        _copy_cells(planned, args.out / "sweep_cells" / "sampling")
+        print(f"sampling: {sum(r['state'] == 'finished' for r in rows)} of {len(rows)} cells finished")
 
 
 if __name__ == "__main__":
