@@ -16,6 +16,7 @@ neighbours, and every value is validated against its declared range.
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import re
 from dataclasses import dataclass
@@ -28,6 +29,7 @@ from . import limits
 from .errors import ConfigError
 from .geometry import FIDELITY_PRESETS, FidelityConfig, SceneConfig, SensorConfig
 from .plugins import get_registry
+from .privacy.settings import AdversaryConfig
 from .settings import Settings, setting
 
 __all__ = [
@@ -135,6 +137,7 @@ _FIXED = {
     "fidelity": FidelityConfig,
     "trainer": TrainerConfig,
     "output": OutputConfig,
+    "privacy": AdversaryConfig,
 }
 _PLUGIN_SECTIONS = ("encoder", "decoder", "dataset")
 
@@ -157,6 +160,8 @@ class RunConfig:
     tree: DictConfig
     #: When ``fidelity.preset`` was ``auto``: the measured decision (error, cost).
     fidelity_auto: Optional[dict] = None
+    #: Privacy-aware training (section ``privacy``, :mod:`optoenc.privacy.adversary`); off by default.
+    privacy: AdversaryConfig = dataclasses.field(default_factory=AdversaryConfig)
 
     def to_yaml(self) -> str:
         return to_yaml(self.tree)

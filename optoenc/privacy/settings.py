@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 from ..settings import Settings, setting
 
-__all__ = ["ADMMConfig", "TikhonovConfig", "LearnedConfig", "PrivacyConfig", "ATTACKS", "METHODS"]
+__all__ = ["ADMMConfig", "TikhonovConfig", "LearnedConfig", "PrivacyConfig", "AdversaryConfig", "ATTACKS", "METHODS"]
 
 #: Attack names, in table order.
 ATTACKS = ("admm", "learned", "plaintext", "pinv", "learned_one")
@@ -55,3 +55,18 @@ class PrivacyConfig(Settings):
     plaintext_n: tuple[int, ...] = setting((100, 300, 1000, 3000, 10000), "plaintext attack: numbers of known pairs", ge=1)
     seed: int = setting(0, "seed of the sensor noise, the galleries and the learned attacker")
     examples: int = setting(8, "example reconstructions kept for pictures", ge=0)
+
+
+@dataclass
+class AdversaryConfig(Settings):
+    """Privacy-aware training (`fit`, section ``privacy``): the encoder trained against a reconstruction adversary.
+
+    Objective per batch: cross-entropy - ``adversary_weight`` * the adversary's reconstruction MSE, the
+    adversary (an MLP from the noisy embedding to the scene) trained alongside on its own MSE
+    (:mod:`optoenc.privacy.adversary`). 0 (the default) is plain training, nothing added.
+    """
+
+    adversary_weight: float = setting(0.0, "weight lambda of the adversary's reconstruction MSE subtracted from the "
+                                      "classifier loss; 0: off (plain training)", ge=0)
+    adversary_hidden: int = setting(256, "units of each of the adversary's two hidden layers", ge=1)
+    adversary_lr: float = setting(1e-3, "the adversary's Adam learning rate", gt=0)
