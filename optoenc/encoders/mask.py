@@ -17,10 +17,16 @@ import math
 import torch
 
 from .. import devices
-from ..optics import intensity_psf
+from ..optics import intensity_psf, padded_shape
 from .base import OpticalEncoder
 
-__all__ = ["MaskEncoder"]
+__all__ = ["MaskEncoder", "AUTO_CHUNK_SAMPLES"]
+
+#: With ``wavelength_chunk`` None, the wavelengths are propagated one at a time once the padded field of all of
+#: them together exceeds this many samples (2**24: 256 MB per complex128 copy). The transfer function's float64
+#: temporaries scale with the batch: the coded aperture's ``reference`` field (3 x 4.0k x 5.4k) peaked at 8.2 GB
+#: all at once, 3.4 GB one at a time; the PSF is the same to float rounding.
+AUTO_CHUNK_SAMPLES = 2**24
 
 
 class MaskEncoder(OpticalEncoder):
@@ -43,7 +49,8 @@ class MaskEncoder(OpticalEncoder):
     the pixel integration and, through :meth:`mask`, the mask pictures.
     """
 
-    #: Wavelengths propagated per FFT batch (None: all at once); set to 1 to bound memory on very fine grids.
+    #: Wavelengths propagated per FFT batch; None: all at once, or one at a time on large fields
+    #: (:data:`AUTO_CHUNK_SAMPLES`); set to 1 to bound memory on very fine grids.
     wavelength_chunk: int | None = None
     #: Set by :meth:`set_monochromatic`: one wavelength (metres) propagated with the G channel's mask for every
     #: colour channel; None: the R, G, B wavelengths of :data:`optoenc.devices.WAVELENGTHS_RGB`.
@@ -129,6 +136,14 @@ class MaskEncoder(OpticalEncoder):
             return "auto"
         return tuple(math.ceil(pad * n) for n in self.field_grid)
 
+    def _auto_chunk(self, wl, d2) -> int:
+        """Wavelengths per batch when ``wavelength_chunk`` is None: all, or 1 above :data:`AUTO_CHUNK_SAMPLES`."""
+        dist = float(torch.as_tensor(d2).detach().abs().max())
+        pad = self.fidelity_padding()
+        pad = pad if isinstance(pad, str) else tuple(int(p) for p in pad)
+        hp, wp = padded_shape(self.field_grid, self.field_spacing, max(wl), dist, pad)
+        return 1 if hp * wp * len(wl) > AUTO_CHUNK_SAMPLES else len(wl)
+
     def propagated_psf(self, mask: torch.Tensor, d2: float | torch.Tensor) -> torch.Tensor:
         """``(3, H, W)`` intensity PSF of an amplitude ``mask``, channels keeping their transmitted power.
 
@@ -146,7 +161,7 @@ class MaskEncoder(OpticalEncoder):
         wl = devices.WAVELENGTHS_RGB if self.monochromatic is None else (self.monochromatic,)
         if self.monochromatic is not None and mask.dim() == 3 and mask.shape[0] == 3:
             mask = mask[1:2]  # the G channel's mask
-        step = self.wavelength_chunk or len(wl)
+        step = self.wavelength_chunk or self._auto_chunk(wl, d2)
         psf = torch.cat([
             intensity_psf(
                 mask[i : i + step] if mask.dim() == 3 and mask.shape[0] > 1 else mask,

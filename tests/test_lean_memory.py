@@ -1,0 +1,56 @@
+"""Memory-lean paths give the same numbers: the FFT correlation tensor and the per-wavelength propagation of large fields."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from optoenc import imaging as im
+
+DT = torch.float64
+
+
+def brute_correlation(box: torch.Tensor, place: torch.Tensor, n_psf: int, sub: int) -> torch.Tensor:
+    """``R[a, p, k]``: the documented definition, by loops (the PSF cell ``k`` spread evenly over ``sub`` fine cells)."""
+    n_out, n_grid = box.shape
+    n_scene = place.shape[1]
+    c = (n_psf // 2) * sub + sub // 2  # the PSF axis on the fine grid
+    out = torch.zeros(n_out, n_scene, n_psf, dtype=DT)
+    for k in range(n_psf):
+        for f in range(sub):
+            shift = k * sub + f - c  # fine-cell offset of this sub-cell of PSF cell k from the axis
+            for y in range(n_grid):
+                if 0 <= y - shift < n_grid:
+                    out[:, :, k] += box[:, y, None] * place[y - shift][None, :] / sub
+    return out
+
+
+@pytest.mark.parametrize("n_grid,n_out,n_psf,sub,height,sampling", [
+    (24, 4, 24, 1, 9.3, "box"), (30, 5, 13, 1, 7.0, "box"), (12, 3, 20, 1, 5.5, "point"),
+    (10, 2, 10, 3, 4.1, "box"), (8, 4, 8, 5, 6.6, "point"),
+])  # fmt: skip
+def test_correlation_tensor_matches_its_definition(n_grid, n_out, n_psf, sub, height, sampling):
+    place = im.placement_matrices((5, 5), (n_grid * sub, n_grid * sub), height * sub)[0]
+    box = im.sampling_matrix(n_grid * sub, n_out, sampling)
+    got = im.correlation_tensor(box, place, n_psf, sub=sub)
+    # float64 FFT correlation: rounding ~1e-16 of the largest entry; 1e-12 leaves margin.
+    torch.testing.assert_close(got, brute_correlation(box, place, n_psf, sub), rtol=0, atol=1e-12 * float(box.max()))
+
+
+@pytest.mark.filterwarnings("ignore:optics sampling")  # a 48 x 64 grid aliases the source; the same in both
+def test_large_fields_propagate_one_wavelength_at_a_time_with_the_same_psf(monkeypatch):
+    from optoenc.bench import pipeline
+    from optoenc.encoders import mask as mask_mod
+
+    calls = []
+    real = mask_mod.intensity_psf
+    monkeypatch.setattr(mask_mod, "intensity_psf", lambda m, wl, *a, **k: calls.append(len(wl)) or real(m, wl, *a, **k))
+    s = pipeline.Setting("w", "sweep", (48, 64), "float64", "auto", oversample=3)
+    batched = pipeline.build_encoder("coded_aperture", s, (6, 8)).psf()
+    assert calls == [3]  # a small field: all wavelengths in one FFT batch
+    calls.clear()
+    monkeypatch.setattr(mask_mod, "AUTO_CHUNK_SAMPLES", 0)  # every field is "large"
+    chunked = pipeline.build_encoder("coded_aperture", s, (6, 8)).psf()
+    assert calls == [1, 1, 1]
+    # the same propagation per wavelength (its own auto padding): float rounding apart
+    torch.testing.assert_close(chunked, batched, rtol=1e-12, atol=0)
