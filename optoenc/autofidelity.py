@@ -19,10 +19,10 @@ import json
 from typing import Any, Callable
 
 from . import __version__
-from .cache import cache_dir
+from .training.cache import cache_dir
 from .errors import ConfigError
 from .geometry import FidelityConfig
-from .rundir import write_json
+from .training.rundir import write_json
 from .settings import to_dict
 
 __all__ = ["resolve", "decision_key"]

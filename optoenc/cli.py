@@ -162,8 +162,8 @@ def _quiet_lightning() -> None:
 
 
 def cmd_fit(args, extra) -> int:
-    from .rundir import RUN_FILES, new_run_dir, remove_if_empty
-    from .training import fit
+    from .training.rundir import RUN_FILES, new_run_dir, remove_if_empty
+    from .training.run import fit
 
     if args.resume:
         run_dir = Path(args.resume)
@@ -177,7 +177,7 @@ def cmd_fit(args, extra) -> int:
         return 0
     if args.resume:
         from .config import compose
-        from .resume import check_resume
+        from .training.resume import check_resume
 
         check_resume(run_dir, compose([_load_yaml(str(cfg))]).tree, run.tree)
     elif os.environ.get(_RUN_DIR_ENV) and os.environ.get("LOCAL_RANK", "0") != "0":
@@ -192,7 +192,7 @@ def cmd_fit(args, extra) -> int:
         summary = fit(run, run_dir, resume=bool(args.resume))
     except Interrupted as err:
         if not err.where and (run_dir / RUN_FILES["config"]).is_file():  # after training: testing, pictures
-            from .resume import interrupted_note
+            from .training.resume import interrupted_note
 
             err.where = interrupted_note(run_dir, err.name, run.trainer.max_epochs)
         err.where = err.where or f"while preparing {run_dir} (before training; nothing to resume, start the run again)"
@@ -207,7 +207,7 @@ def cmd_fit(args, extra) -> int:
 
 
 def cmd_evaluate(args, extra) -> int:
-    from .training import evaluate
+    from .training.run import evaluate
 
     run_dir = Path(args.run)
     run = _run_config(args.run, extra)
@@ -219,9 +219,9 @@ def cmd_evaluate(args, extra) -> int:
 
 def _run_config(run_dir: str, extra):
     from .config import compose
-    from .rundir import RUN_FILES
+    from .training.rundir import RUN_FILES
 
-    from .resume import check_evaluate
+    from .training.resume import check_evaluate
 
     cfg = Path(run_dir) / RUN_FILES["config"]
     if not cfg.is_file():
@@ -235,8 +235,8 @@ def _run_config(run_dir: str, extra):
 def cmd_export(args, extra) -> int:
     from PIL import Image
 
-    from .rundir import atomic_write_bytes
-    from .training import load_encoder
+    from .training.rundir import atomic_write_bytes
+    from .training.run import load_encoder
 
     out = _out_file(args.out)
     run = _run_config(args.run, extra)
@@ -431,7 +431,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 0
         if extra and args.command not in ("fit", "validate", "test", "psf", "simulate", "export", "reconstruct", "privacy"):
             parser.error(f"unrecognized arguments: {' '.join(extra)}")
-        from .resume import raise_on_signals
+        from .training.resume import raise_on_signals
 
         with raise_on_signals():
             return COMMANDS[args.command](args, extra)

@@ -9,7 +9,7 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from .rundir import atomic_write_bytes
+from .training.rundir import atomic_write_bytes
 
 __all__ = ["spectral_psf", "psf_rgb", "save_psf", "save_mask", "mask_spacing", "save_measurements", "save_curves"]
 
@@ -217,7 +217,7 @@ def _mappable():
 
 def save_curves(path: str | Path, metrics_csv: str | Path) -> Path | None:
     """Loss and accuracy per epoch from a run's ``metrics.csv``."""
-    from .callbacks import read_metrics
+    from .training.callbacks import read_metrics
 
     rows = read_metrics(metrics_csv)
     if not rows:

@@ -389,7 +389,7 @@ def check_cache_key(cls: type, **setup: Any) -> str | None:
     configuration and changes when the PSF changes with every setting kept (e.g. an edited helper function)."""
     import torch
 
-    from .cache import embedding_key
+    from .training.cache import embedding_key
     from .datasets.base import DatasetConfig
 
     label = _label(cls)

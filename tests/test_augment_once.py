@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from optoenc.augment import BUILTIN, Compose, canvas_geometry, to_canvas
-from optoenc.augment_once import draws
+from optoenc.training.augment_once import draws
 
 GEOM = canvas_geometry(0.12, (28, 28), 0.47, 0.63, min_pitch=0.0)
 AUGS = [cls() for cls in BUILTIN]
@@ -35,7 +35,7 @@ def test_an_example_gets_the_same_transform_in_any_batch():
 
 
 def test_fixed_encoder_once_mode_precomputes_the_transformed_dataset(tmp_path, quick):
-    from optoenc.augment_once import encode_transformed
+    from optoenc.training.augment_once import encode_transformed
     from optoenc.config import compose
     from optoenc.training import build
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from optoenc import cache
+from optoenc.training import cache
 from optoenc.config import build_encoder, compose
 
 

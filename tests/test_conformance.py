@@ -127,7 +127,7 @@ def test_kit_catches_a_knob_passed_on_in_the_wrong_type_at_reference():
 
 
 def test_kit_catches_a_cache_key_blind_to_the_psf(monkeypatch):
-    from optoenc import cache
+    from optoenc.training import cache
 
     diffuser = get_registry("encoder").get("diffuser")
     assert check_encoder(diffuser, checks=["cache_key"]) == {"cache_key": "ok"}

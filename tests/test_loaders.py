@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from optoenc.loaders import make_loader
+from optoenc.training.loaders import make_loader
 
 
 def _epoch(loader, epoch):

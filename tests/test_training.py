@@ -8,7 +8,7 @@ import lightning as L
 import pytest
 import yaml
 
-from optoenc.callbacks import read_metrics
+from optoenc.training.callbacks import read_metrics
 from optoenc.cli import main
 from optoenc.config import compose
 from optoenc.training import fit

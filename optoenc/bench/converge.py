@@ -26,7 +26,7 @@ from typing import Callable, Optional, Sequence
 
 import torch
 
-from ..rundir import atomic_write_bytes
+from ..training.rundir import atomic_write_bytes
 from .pipeline import DIGITS, EMBEDDING, ENCODERS, _data, _free, embed, relative_error
 from .truth import SENSOR_GRID, _refined, richardson, truth
 

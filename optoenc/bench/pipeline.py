@@ -60,9 +60,9 @@ from .. import devices
 from ..errors import ConfigError
 from ..settings import to_dict
 from ..geometry import FIDELITY_PRESETS, FidelityConfig
-from ..loaders import encode
+from ..training.loaders import encode
 from ..optics import clear_cache, sampling_report
-from ..rundir import atomic_write_bytes
+from ..training.rundir import atomic_write_bytes
 
 __all__ = [
     "ENCODERS",
@@ -607,7 +607,7 @@ def encode_all(encoder: str = "fixed_slm", preset: str = "default", embedding=EM
     Returns:
         ``{"encoder", "preset", "count", "seconds", "load_s", "encode_s", "shape", "cache_hit"}``.
     """
-    from .. import cache
+    from ..training import cache
     from ..datasets.mnist import MNIST
 
     cls = _encoder_class(encoder)

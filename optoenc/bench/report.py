@@ -12,7 +12,7 @@ import math
 from pathlib import Path
 from typing import Iterable, Optional, Sequence
 
-from ..rundir import atomic_write_bytes
+from ..training.rundir import atomic_write_bytes
 
 __all__ = [
     "CSV_FIELDS",

@@ -71,7 +71,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if current == text:
         print(f"{args.output} unchanged")
         return 0
-    from ..rundir import atomic_write_text
+    from ..training.rundir import atomic_write_text
 
     args.output.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(args.output, text)

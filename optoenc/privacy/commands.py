@@ -9,7 +9,7 @@ from pathlib import Path
 
 from ..settings import parse_hw
 from ..errors import ConfigError, DataError
-from ..rundir import atomic_write_bytes, write_json
+from ..training.rundir import atomic_write_bytes, write_json
 from .settings import ATTACKS, METHODS, ADMMConfig, LearnedConfig, PrivacyConfig, TikhonovConfig
 
 __all__ = ["add_parsers", "reconstruct", "privacy"]

@@ -14,8 +14,8 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from ..cache import cache_dir
-from ..rundir import atomic_write_bytes
+from ..training.cache import cache_dir
+from ..training.rundir import atomic_write_bytes
 
 __all__ = ["Reader", "reader", "READER_EPOCHS"]
 

@@ -19,7 +19,7 @@ from typing import Any, Callable, Sequence
 
 
 from ..errors import ConfigError
-from ..rundir import RUN_FILES, atomic_write_text
+from ..training.rundir import RUN_FILES, atomic_write_text
 
 __all__ = ["COLUMNS", "load_run", "run_rows", "sweep_cells", "write_table", "read_table", "markdown"]
 
@@ -36,7 +36,7 @@ def load_run(run_dir: str | Path, overrides: Sequence[str] = (), which: str = "b
     from omegaconf import OmegaConf
 
     from ..config import build_encoder, compose
-    from ..training import checkpoint_path, load_encoder
+    from ..training.run import checkpoint_path, load_encoder
 
     run_dir = Path(run_dir)
     cfg = run_dir / RUN_FILES["config"]

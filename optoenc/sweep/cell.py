@@ -14,7 +14,7 @@ import time
 import traceback
 from pathlib import Path
 
-from ..rundir import RUN_FILES, write_json
+from ..training.rundir import RUN_FILES, write_json
 from .cells import STATUS
 
 __all__ = ["run_cell", "main"]
@@ -25,7 +25,7 @@ def run_cell(path: str | Path, threads: int | None = None) -> dict:
     from omegaconf import OmegaConf
 
     from ..config import compose
-    from ..training import checkpoint_path, fit
+    from ..training.run import checkpoint_path, fit
 
     path = Path(path)
     started = time.time()

@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from ..rundir import RUN_FILES
+from ..training.rundir import RUN_FILES
 from .spec import PLUGIN_KEYS, Cell, SweepSpec, _flatten
 
 __all__ = ["compose_cell", "cell_dir", "cell_state", "STATUS", "VOLATILE_KEYS", "config_differences"]

@@ -13,8 +13,8 @@ import math
 from pathlib import Path
 from typing import Any
 
-from ..callbacks import read_metrics
-from ..rundir import RUN_FILES, atomic_write_text
+from ..training.callbacks import read_metrics
+from ..training.rundir import RUN_FILES, atomic_write_text
 from .cells import STATUS
 from .runner import PlannedCell
 from .spec import SweepSpec, _fmt

@@ -15,9 +15,9 @@ from typing import Any
 
 import torch
 
-from ..callbacks import read_metrics
+from ..training.callbacks import read_metrics
 from ..errors import OptoencError
-from ..rundir import RUN_FILES
+from ..training.rundir import RUN_FILES
 
 __all__ = ["kind_of", "estimate"]
 
@@ -43,7 +43,7 @@ def _sizes(run, cache: dict) -> tuple[int, int, int]:
 def _measure(run, scene_shape) -> dict[str, float]:
     """Seconds per training step and per encoded example, timed on random data of the cell's shapes."""
     from ..config import build_encoder
-    from ..module import EncoderClassifier
+    from ..training.module import EncoderClassifier
     from ..plugins import get_registry
 
     enc = build_encoder(run)

@@ -5,9 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from ..callbacks import read_metrics
+from ..training.callbacks import read_metrics
 from ..pictures import _figure, _save
-from ..rundir import RUN_FILES
+from ..training.rundir import RUN_FILES
 
 __all__ = ["sweep_plots"]
 

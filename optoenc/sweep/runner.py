@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Callable, Iterable
 
 from ..errors import ConfigError
-from ..rundir import RUN_FILES, atomic_write_text
+from ..training.rundir import RUN_FILES, atomic_write_text
 from .cells import cell_dir, cell_state, compose_cell, config_differences
 from .spec import Cell, SweepSpec
 

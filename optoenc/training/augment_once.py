@@ -17,9 +17,9 @@ import hashlib
 
 import torch
 
+from ..augment import Compose, to_canvas
+from ..errors import ConfigError
 from . import cache
-from .augment import Compose, to_canvas
-from .errors import ConfigError
 
 __all__ = ["draws", "encode_transformed", "DRAW_MODES"]
 
@@ -62,7 +62,7 @@ def encode_transformed(encoder, augs, canvas, images: torch.Tensor, u: torch.Ten
 
 def token(augs, canvas, u: dict[str, torch.Tensor]) -> str:
     """What, beyond the encoder and the dataset, a transformed dataset's embeddings depend on."""
-    from .settings import to_dict
+    from ..settings import to_dict
 
     h = hashlib.sha256(repr([(a.name, to_dict(a.config)) for a in augs]).encode())
     h.update(repr(canvas).encode())

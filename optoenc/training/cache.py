@@ -24,8 +24,8 @@ from typing import Any, Callable, Mapping
 
 import torch
 
+from ..settings import to_dict
 from .rundir import atomic_write_bytes
-from .settings import to_dict
 
 __all__ = ["cache_dir", "embedding_key", "tensor_digest", "load", "store", "cached", "FORMAT"]
 

@@ -143,7 +143,7 @@ class FiniteLoss(L.Callback):
         loss = outputs.get("loss") if isinstance(outputs, dict) else outputs
         if loss is None or math.isfinite(float(loss)):
             return
-        from .errors import TrainingDiverged
+        from ..errors import TrainingDiverged
 
         raise TrainingDiverged(
             f"training loss became {float(loss)} at epoch {trainer.current_epoch}, batch {batch_idx}: "

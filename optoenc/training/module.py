@@ -10,8 +10,8 @@ import torch.nn.functional as F
 from torch import nn
 from torchmetrics.classification import MulticlassAccuracy
 
-from .decoders import Decoder
-from .encoders.base import OpticalEncoder
+from ..decoders import Decoder
+from ..encoders.base import OpticalEncoder
 
 __all__ = ["EncoderClassifier", "SEED_STRIDE"]
 
@@ -72,7 +72,7 @@ class EncoderClassifier(L.LightningModule):
         if self.precomputed:
             return x
         if len(self.augmentations) and augment:
-            from .augment import Compose, to_canvas
+            from ..augment import Compose, to_canvas
 
             canvas = to_canvas(x, self.canvas)
             # Compose tracks each object's position and size from one transform to the next.

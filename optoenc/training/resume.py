@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from .errors import ConfigError, DataError, Interrupted
+from ..errors import ConfigError, DataError, Interrupted
 from .rundir import RUN_FILES, write_json
 
 __all__ = [

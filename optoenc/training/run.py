@@ -18,16 +18,17 @@ from typing import Any
 import torch
 
 
-from . import cache, pictures
-from .config import RunConfig, build_encoder
-from .geometry import FidelityConfig
+from .. import pictures
+from ..config import RunConfig, build_encoder
+from ..errors import ConfigError, DataError, Interrupted
+from ..geometry import FidelityConfig
+from ..plugins import get_registry
+from ..settings import to_dict
+from . import cache
 from .loaders import encode, make_loader
 from .module import EncoderClassifier
-from .plugins import get_registry
-from .errors import ConfigError, DataError, Interrupted
 from .resume import clear_interrupted, interrupted_note, raise_on_signals, read_checkpoint
 from .rundir import RUN_FILES, atomic_write_text, write_json
-from .settings import to_dict
 
 __all__ = ["Parts", "build", "fit", "evaluate", "checkpoint_path", "load_encoder", "verify"]
 
@@ -45,7 +46,7 @@ class Parts:
 
 
 def _canvas(run: RunConfig, encoder, scene_shape):
-    from .augment import canvas_geometry
+    from ..augment import canvas_geometry
 
     m = encoder.magnification
     fov_h, fov_w = encoder.sensor.size[0] / m, encoder.sensor.size[1] / m
@@ -59,7 +60,7 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
     if run.trainer.threads:
         torch.set_num_threads(run.trainer.threads)
     if run.fidelity.preset == "auto":
-        from .autofidelity import resolve
+        from ..autofidelity import resolve
 
         run.fidelity, run.fidelity_auto = resolve(run, root=run.trainer.cache_dir)
     torch.manual_seed(run.seed)

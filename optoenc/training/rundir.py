@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from .errors import ConfigError, DataError
+from ..errors import ConfigError, DataError
 
 __all__ = ["atomic_write_bytes", "atomic_write_text", "write_json", "new_run_dir", "remove_if_empty", "RUN_FILES"]
 
