@@ -17,7 +17,7 @@
   setting meeting an error tolerance.
 
 The optics micro-benchmark (batched vs looped wavelengths) is
-:mod:`optoenc.bench_optics` (``optoenc bench optics``).
+:mod:`optoenc.bench.optics` (``optoenc bench optics``).
 """
 
 from .auto import AutoChoice, auto_fidelity, auto_select, choose

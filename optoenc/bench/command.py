@@ -44,7 +44,7 @@ def main(args) -> int:
     from .. import bench
 
     if args.what == "optics":
-        from .. import bench_optics
+        from . import optics as bench_optics
 
         print(load_line("start"))
         print(bench_optics.format_table(bench_optics.run()))

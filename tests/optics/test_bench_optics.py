@@ -1,6 +1,6 @@
 """The optics benchmark returns rows and renders them (tiny grid: a smoke test, not a timing)."""
 
-from optoenc import bench_optics
+from optoenc.bench import optics as bench_optics
 
 
 def test_run_and_format_table():
