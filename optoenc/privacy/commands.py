@@ -51,6 +51,8 @@ def add_parsers(sub) -> None:
     p.add_argument("--learned-epochs", type=int, help=f"learned attacker's epochs (default {LearnedConfig().epochs})")
     p.add_argument("--learned-pairs", type=int, help=f"learned attacker's training pairs (default {LearnedConfig().pairs})")
     p.add_argument("--force", action="store_true", help="re-measure runs that already have privacy/privacy.csv")
+    p.add_argument("--defence", action="store_true", help="with --sweep: defence.{csv,md}, each run's attacks against "
+                   "its baseline (encoder.patterns = 1, privacy.adversary_weight = 0; docs/privacy.md)")
 
 
 def _given(**kw):
@@ -189,16 +191,23 @@ def privacy(args, extra) -> int:
     from ..cli import _split_overrides
     from . import report
 
+    if args.defence and not args.sweep:
+        raise ConfigError("--defence", True, "needs --sweep DIR (the baseline and the defended runs side by side)")
     kw = _evaluate_kw(args)
     say = lambda msg: print(f"  {msg} ...", file=sys.stderr)  # noqa: E731
     chance = 1.0 / kw["config"].gallery
     if args.sweep:
-        rows = []
+        rows, cells = [], []
         for cell in report.sweep_cells(args.sweep):
             print(f"{cell.name}", file=sys.stderr)
-            rows += report.measure_run(cell, kw, _split_overrides(extra), args.force, say)
+            cells.append((cell, report.measure_run(cell, kw, _split_overrides(extra), args.force, say)))
+            rows += cells[-1][1]
         out = Path(args.out) if args.out else Path(args.sweep) / report.PRIVACY_DIR
         paths = report.write_sweep(rows, out, chance)
+        if args.defence:
+            from . import defence
+
+            paths += defence.write_defence(defence.defence_rows(cells), out)
     elif args.run:
         if len(args.run) > 1:
             raise ConfigError("--run", args.run, "give one run directory (several: put them in a --sweep folder)")

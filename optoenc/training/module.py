@@ -48,6 +48,7 @@ class EncoderClassifier(L.LightningModule):
         seed: int = 0,
         precomputed: bool = False,
         augment_eval: bool = True,
+        adversary: nn.Module | None = None,
     ):
         super().__init__()
         self.encoder = encoder
@@ -57,6 +58,8 @@ class EncoderClassifier(L.LightningModule):
         self.lr, self.encoder_lr, self.seed = lr, encoder_lr or lr, int(seed)
         self.precomputed = precomputed
         self.augment_eval = augment_eval
+        #: Privacy-aware training (:class:`optoenc.privacy.adversary.AdversaryObjective`), None: plain.
+        self.adversary = adversary
         n = decoder.num_classes
         self.train_acc = MulticlassAccuracy(num_classes=n, average="micro")
         self.val_acc = MulticlassAccuracy(num_classes=n, average="micro")
@@ -84,18 +87,25 @@ class EncoderClassifier(L.LightningModule):
 
     def forward(self, x: torch.Tensor, augment: bool = False, draws: torch.Tensor | None = None) -> torch.Tensor:
         """Logits for a batch of scenes (noise included)."""
-        emb = self.encoder.add_sensor_noise(self.clean_embedding(x, augment, draws))
-        return self.decoder(emb)
+        return self.decoder(self.embed(x, augment, draws))
+
+    def embed(self, x: torch.Tensor, augment: bool = False, draws: torch.Tensor | None = None) -> torch.Tensor:
+        """Noisy sensor embeddings of a batch (what the decoder reads)."""
+        return self.encoder.add_sensor_noise(self.clean_embedding(x, augment, draws))
 
     # --------------------------------------------------------------- steps
     def _step(self, batch, metric, stage: str, augment: bool) -> torch.Tensor:
         x, y = batch[0], batch[1]
-        logits = self(x, augment=augment, draws=batch[2] if len(batch) > 2 else None)
+        emb = self.embed(x, augment, batch[2] if len(batch) > 2 else None)
+        logits = self.decoder(emb)
         loss = F.cross_entropy(logits, y)
         metric.update(logits.detach(), y)
         on_step = stage == "train"
         self.log(f"{stage}_loss", loss, on_step=on_step, on_epoch=True, prog_bar=stage != "test", batch_size=len(y))
         self.log(f"{stage}_acc", metric, on_step=False, on_epoch=True, prog_bar=True, batch_size=len(y))
+        if self.adversary is not None and stage == "train":  # privacy-aware training: CE - lambda * adversary MSE
+            loss, adv_mse = self.adversary.objective(loss, emb, x)
+            self.log("train_adversary_mse", adv_mse, on_step=False, on_epoch=True, batch_size=len(y))
         return loss
 
     def training_step(self, batch, batch_idx):
@@ -126,4 +136,6 @@ class EncoderClassifier(L.LightningModule):
         enc = [p for p in self.encoder.parameters() if p.requires_grad]
         if enc:
             groups.append({"params": enc, "lr": self.encoder_lr})
+        if self.adversary is not None:
+            groups.append({"params": list(self.adversary.parameters()), "lr": self.adversary.lr})
         return torch.optim.Adam(groups)

@@ -1,0 +1,114 @@
+"""Defence tables: each attack's quality against a variable-pattern or adversarially trained camera, beside its baseline.
+
+A sweep folder holds runs of one encoder that differ in ``encoder.patterns``
+(K, the variable-pattern defence) and ``privacy.adversary_weight`` (lambda,
+privacy-aware training). For every embedding size the baseline is the run
+with K = 1 and lambda = 0; every row gives the attack's metrics and their
+change against the same attack on the baseline:
+
+* ``psnr_drop``, ``ssim_drop``: relative drops ``1 - value / baseline`` (the
+  follow-up work's "drop in image quality"; positive = the defence helps);
+* ``reid_change``, ``readability_change``, ``acc_change``: differences in
+  rate (points / 100).
+
+Written by ``optoenc privacy --sweep DIR --defence`` to
+``DIR/privacy/defence.{csv,md}`` (docs/results/privacy_defence.csv).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from pathlib import Path
+from typing import Any, Sequence
+
+from ..training.rundir import RUN_FILES, atomic_write_text
+
+__all__ = ["COLUMNS", "cell_settings", "defence_rows", "write_defence", "markdown"]
+
+COLUMNS = (
+    "encoder", "embedding", "patterns", "adversary_weight", "epochs", "test_acc", "attack", "n_pairs", "psnr", "ssim",
+    "readability", "reid_top1", "reid_top1_se", "psnr_drop", "ssim_drop", "reid_change", "readability_change",
+    "acc_change", "count", "run",
+)
+
+
+def cell_settings(run_dir: str | Path) -> dict[str, Any]:
+    """``patterns`` (K), ``adversary_weight`` (lambda) and ``epochs`` of a run directory (defaults when absent)."""
+    from omegaconf import OmegaConf
+
+    tree = OmegaConf.to_container(OmegaConf.load(Path(run_dir) / RUN_FILES["config"]))
+    return {
+        "patterns": int((tree.get("encoder") or {}).get("patterns", 1)),
+        "adversary_weight": float((tree.get("privacy") or {}).get("adversary_weight", 0.0)),
+        "epochs": int((tree.get("trainer") or {}).get("max_epochs", 0)),
+    }
+
+
+def _key(r: dict) -> tuple:
+    return (r["encoder"], r["embedding"], r["attack"], str(r.get("n_pairs", "")))
+
+
+def defence_rows(cells: Sequence[tuple[str | Path, Sequence[dict]]]) -> list[dict[str, Any]]:
+    """Rows of every cell with its settings and its change against the baseline cell of its embedding.
+
+    Args:
+        cells: ``(run directory, its privacy rows)`` pairs (as ``report.measure_run`` returns them).
+    """
+    tagged = []
+    for run_dir, rows in cells:
+        s = cell_settings(run_dir)
+        tagged += [{**r, **s} for r in rows]
+    base = {_key(r): r for r in tagged if r["patterns"] == 1 and r["adversary_weight"] == 0}
+    out = []
+    for r in sorted(tagged, key=lambda r: (r["embedding"], r["patterns"], r["adversary_weight"])):
+        row = dict(r)
+        b = base.get(_key(r))
+        if b is not None:
+            row["psnr_drop"] = 1 - float(r["psnr"]) / float(b["psnr"])
+            row["ssim_drop"] = 1 - float(r["ssim"]) / float(b["ssim"])
+            row["reid_change"] = float(r["reid_top1"]) - float(b["reid_top1"])
+            row["readability_change"] = float(r["readability"]) - float(b["readability"])
+            row["acc_change"] = float(r["test_acc"]) - float(b["test_acc"])
+        out.append(row)
+    return out
+
+
+def _fmt(v: Any) -> str:
+    return f"{v:.6g}" if isinstance(v, float) else str(v)
+
+
+def write_defence(rows: Sequence[dict], out_dir: str | Path) -> list[Path]:
+    """``defence.csv`` (all :data:`COLUMNS`) and ``defence.md`` under ``out_dir``."""
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=list(COLUMNS), extrasaction="ignore", lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: _fmt(r.get(k, "")) for k in COLUMNS})
+    out_dir = Path(out_dir)
+    return [atomic_write_text(out_dir / "defence.csv", buf.getvalue()),
+            atomic_write_text(out_dir / "defence.md", markdown(rows))]
+
+
+def _pct(v: Any, signed: bool = False) -> str:
+    if v in ("", None):
+        return "-"
+    return f"{100 * float(v):+.1f}" if signed else f"{100 * float(v):.1f}"
+
+
+def markdown(rows: Sequence[dict]) -> str:
+    """Markdown table: settings, accuracy, each attack's quality and its change against the baseline."""
+    lines = ["| embedding | K | lambda | test acc [%] | attack | PSNR [dB] | SSIM | re-id top-1 [%] | readability [%] "
+             "| PSNR drop [%] | SSIM drop [%] | re-id change [pts] | acc change [pts] |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        if r["attack"] == "mean_scene":
+            continue
+        att = r["attack"] + (f" (N={int(float(r['n_pairs']))})" if r.get("n_pairs") not in ("", None) else "")
+        lines.append(
+            f"| {r['embedding']} | {r['patterns']} | {r['adversary_weight']:g} | {_pct(r['test_acc'])} | {att} "
+            f"| {float(r['psnr']):.1f} | {float(r['ssim']):.2f} | {_pct(r['reid_top1'])} +- {_pct(r['reid_top1_se'])} "
+            f"| {_pct(r['readability'])} | {_pct(r.get('psnr_drop'), True)} | {_pct(r.get('ssim_drop'), True)} "
+            f"| {_pct(r.get('reid_change'), True)} | {_pct(r.get('acc_change'), True)} |"
+        )
+    return "\n".join(lines) + "\n"
