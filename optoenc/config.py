@@ -27,7 +27,8 @@ from omegaconf import errors as oc_errors
 
 from . import limits
 from .errors import ConfigError
-from .geometry import FIDELITY_PRESETS, FidelityConfig, SceneConfig, SensorConfig
+from .fidelity.knobs import FIDELITY_PRESETS, FidelityConfig
+from .geometry import SceneConfig, SensorConfig
 from .plugins import get_registry
 from .privacy.settings import AdversaryConfig
 from .settings import Settings, setting

@@ -357,7 +357,7 @@ def check_presets(cls: type, **setup: Any) -> str | None:
     own preset, which every other check runs, only for its knobs)."""
     import torch
 
-    from .geometry import FIDELITY_PRESETS, KNOB_NAMES, Knobs
+    from .fidelity.knobs import FIDELITY_PRESETS, KNOB_NAMES, Knobs
 
     own = _merge(SMALL_SETUP, setup)["fidelity"].get("preset") or "default"
     for preset in FIDELITY_PRESETS:

@@ -6,10 +6,10 @@ from dataclasses import dataclass, field
 
 import pytest
 
-from optoenc import autofidelity
+from optoenc.fidelity import auto as autofidelity
 from optoenc.config import build_encoder, compose
 from optoenc.errors import ConfigError
-from optoenc.geometry import FidelityConfig
+from optoenc.fidelity.knobs import FidelityConfig
 
 
 @dataclass

@@ -9,11 +9,11 @@ import torch
 
 from optoenc import bench
 from optoenc.bench import pipeline
-from optoenc.bench.auto import auto_fidelity, choose
+from optoenc.fidelity.choose import auto_fidelity, choose
 from optoenc.bench.report import format_outcomes, format_sweep, format_table, outcomes, read_csv, write_csv
 from optoenc.cli import main
 from optoenc.errors import ConfigError
-from optoenc.geometry import FIDELITY_PRESETS
+from optoenc.fidelity.knobs import FIDELITY_PRESETS
 
 # Tiny grids alias the spherical wave: expected here, and recorded by the benchmark in its rows.
 pytestmark = pytest.mark.filterwarnings("ignore::optoenc.optics.diagnostics.SamplingWarning")

@@ -13,14 +13,14 @@
 * :mod:`optoenc.bench.speed`: the learned SLM's step against the published
   paper step, interleaved, 1 and 2 threads (``optoenc bench speed``);
 * :mod:`optoenc.bench.report`: tables, CSV, the Pareto plot, outcome checks;
-* :mod:`optoenc.bench.auto`: :func:`auto_fidelity`, the cheapest measured
-  setting meeting an error tolerance.
+* :func:`auto_fidelity` (from :mod:`optoenc.fidelity.choose`, re-exported
+  here): the cheapest measured setting meeting an error tolerance.
 
 The optics micro-benchmark (batched vs looped wavelengths) is
 :mod:`optoenc.bench.optics` (``optoenc bench optics``).
 """
 
-from .auto import AutoChoice, auto_fidelity, auto_select, choose
+from ..fidelity.choose import AutoChoice, auto_fidelity, auto_select, choose
 from .pipeline import ENCODERS, PAPER_GRID, PRESETS, TRUTH_GRID, encode_all, paper_forward, plan, run
 from .report import format_outcomes, format_sweep, format_table, outcomes, read_csv, save_pareto, write_csv
 

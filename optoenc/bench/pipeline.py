@@ -24,7 +24,7 @@ What is measured (``optoenc bench``), for each encoder:
 * a sweep of each knob alone from the ``default`` preset: ``grid``,
   ``padding`` (mask encoders), ``dtype``, ``psf_oversample`` and
   ``wavelengths`` (mask encoders: one wavelength, 550 nm, instead of three;
-  not a fidelity knob, so never chosen by :mod:`optoenc.bench.auto`).
+  not a fidelity knob, so never chosen by :mod:`optoenc.fidelity.choose`).
 
 Per setting: the relative L2 error ``||E - E_truth|| / ||E_truth||`` of the
 noise-free embeddings of the same test digits (learned encoders at their
@@ -59,7 +59,7 @@ import torch.nn.functional as F
 from .. import devices
 from ..errors import ConfigError
 from ..settings import to_dict
-from ..geometry import FIDELITY_PRESETS, FidelityConfig
+from ..fidelity.knobs import FIDELITY_PRESETS, FidelityConfig
 from ..training.loaders import encode
 from ..optics import clear_cache, sampling_report
 from ..training.rundir import atomic_write_bytes

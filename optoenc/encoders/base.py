@@ -21,7 +21,8 @@ from torch import nn
 
 from .. import imaging, limits
 from ..errors import ConfigError, DataError
-from ..geometry import FidelityConfig, Geometry, SceneConfig, SensorConfig
+from ..fidelity.knobs import FidelityConfig
+from ..geometry import Geometry, SceneConfig, SensorConfig
 from ..settings import Documented, Settings, setting
 
 __all__ = ["EncoderConfig", "OpticalEncoder"]
@@ -110,7 +111,7 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         self.sensor = _coerce(SensorConfig, sensor, "sensor")
         #: Bound to this class's ``fidelity_presets``: ``self.fidelity.resolved() == self.knobs``.
         self.fidelity = _coerce(FidelityConfig, fidelity, "fidelity").bind(type(self).fidelity_presets)
-        #: The resolved fidelity knobs (:class:`optoenc.geometry.Knobs`: preset, this encoder's overrides, explicit knobs).
+        #: The resolved fidelity knobs (:class:`optoenc.fidelity.knobs.Knobs`: preset, this encoder's overrides, explicit knobs).
         self.knobs = self.fidelity.resolved()
         limits.check_simulation(self.knobs)  # before any array is made: a grid that cannot fit fails here
         self.geometry = Geometry.of(self.sensor, self.fidelity)

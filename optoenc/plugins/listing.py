@@ -104,7 +104,8 @@ def plugins(as_json: bool = False) -> str:
 #: Settings groups that are not plugins but appear in every run config.
 def SHARED_SECTIONS() -> dict[str, type]:  # noqa: N802 - a function so importing stays light
     from ..config import OutputConfig, TrainerConfig
-    from ..geometry import FidelityConfig, SceneConfig, SensorConfig
+    from ..fidelity.knobs import FidelityConfig
+    from ..geometry import SceneConfig, SensorConfig
 
     return {"scene": SceneConfig, "sensor": SensorConfig, "fidelity": FidelityConfig, "trainer": TrainerConfig, "output": OutputConfig}
 

@@ -20,15 +20,14 @@ import torch
 
 from .. import pictures
 from ..config import RunConfig, build_encoder
-from ..errors import ConfigError, DataError, Interrupted, OptoencError
+from ..errors import ConfigError, DataError, Interrupted
 from ..fidelity.knobs import FidelityConfig
 from ..plugins import get_registry
-from ..privacy import adversary
 from ..settings import to_dict
 from . import cache
 from .loaders import encode, make_loader
 from .module import EncoderClassifier
-from .resume import clear_interrupted, interrupted_note, mark_failed, raise_on_signals, read_checkpoint
+from .resume import clear_interrupted, interrupted_note, raise_on_signals, read_checkpoint
 from .rundir import RUN_FILES, atomic_write_text, write_json
 
 __all__ = ["Parts", "build", "fit", "evaluate", "checkpoint_path", "load_encoder", "verify"]
@@ -116,7 +115,6 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
         encoder_lr=run.trainer.encoder_lr,
         seed=run.seed,
         precomputed=precomputed,
-        adversary=adversary.from_config(run.privacy, encoder, splits.train[0].shape[1:]),
     )
     if decoder.norm_kind == "standardize":
         sample = data["train"][0][:5000]
@@ -245,11 +243,6 @@ def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> di
             trainer.fit(parts.module, parts.loaders["train"], parts.loaders["val"], ckpt_path=str(ckpt) if resume else None)
     except Interrupted as err:
         err.where = _interrupted(run, run_dir, trainer, err)
-        raise
-    except Exception as err:  # e.g. TrainingDiverged: the run directory says it failed, and why
-        marker = mark_failed(run_dir, err, trainer.current_epoch)
-        if isinstance(err, OptoencError):  # the CLI's one line says where that is
-            err.args = (f"{err}; the run is marked failed in {marker}",)
         raise
     best = checkpoint_path(run_dir, "best")
     best_val = float(trainer.checkpoint_callback.best_model_score or float("nan"))
