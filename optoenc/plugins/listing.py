@@ -103,11 +103,9 @@ def plugins(as_json: bool = False) -> str:
 
 #: Settings groups that are not plugins but appear in every run config.
 def SHARED_SECTIONS() -> dict[str, type]:  # noqa: N802 - a function so importing stays light
-    from ..config import OutputConfig, TrainerConfig
-    from ..fidelity.knobs import FidelityConfig
-    from ..geometry import SceneConfig, SensorConfig
+    from ..config import _FIXED  # the one table of the fixed sections (scene, sensor, ..., privacy)
 
-    return {"scene": SceneConfig, "sensor": SensorConfig, "fidelity": FidelityConfig, "trainer": TrainerConfig, "output": OutputConfig}
+    return dict(_FIXED)
 
 
 def settings_reference() -> str:

@@ -59,7 +59,7 @@ class PrivacyConfig(Settings):
 
 @dataclass
 class AdversaryConfig(Settings):
-    """Privacy-aware training (`fit`, section ``privacy``): the encoder trained against a reconstruction adversary.
+    """Privacy-aware training (`fit`, section `privacy`): the encoder trained against a reconstruction adversary.
 
     Objective per batch: cross-entropy - ``adversary_weight`` * the adversary's reconstruction MSE, the
     adversary (an MLP from the noisy embedding to the scene) trained alongside on its own MSE
