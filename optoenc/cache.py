@@ -1,7 +1,0 @@
-"""Moved to :mod:`optoenc.training.cache`; this old import path is kept and is the same module object."""
-
-import sys
-
-from optoenc.training import cache as _moved
-
-sys.modules[__name__] = _moved
