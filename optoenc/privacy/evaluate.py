@@ -117,6 +117,13 @@ def evaluate(
         say(name)
         if name == "admm":
             measure(name, patterns.grouped(lambda op, v: admm(op, v, admm_config), ops, y, shown))
+        elif name == "admm_search":
+            if K == 1:
+                continue  # one pattern: the same attacker as "admm"
+            # All K patterns known, not which one made a capture: ADMM with each, keep the best data fit.
+            recs = torch.stack([admm(op, y, admm_config) for op in ops])
+            resid = torch.stack([(op.forward(r) - y.to(r.dtype)).flatten(1).norm(dim=1) for op, r in zip(ops, recs)])
+            measure(name, recs[resid.argmin(0), torch.arange(n)])
         elif name == "pinv":
             rcond = (linear_config or TikhonovConfig()).rcond
             measure(name, patterns.grouped(lambda op, v: pseudo_inverse(op, v, rcond), ops, y, shown))

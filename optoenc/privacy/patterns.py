@@ -6,6 +6,10 @@ Threat models (docs/privacy.md, "Defence: variable patterns"):
   knows which one made each capture (a stolen device key): each capture is
   inverted with its own operator. The defence cannot help here; the row shows
   what the camera's patterns leak at best for the attacker.
+* ``admm_search``: the attacker has all ``K`` patterns but not the index of
+  a capture: ADMM with every pattern, keeping the reconstruction whose
+  operator fits the capture best (smallest residual). The defence then rests
+  on the patterns' secrecy, not on the index's.
 * ``plaintext``: the attacker knows ``N`` (scene, embedding) pairs captured
   with whatever patterns the camera drew, not the patterns: he fits one
   operator to all of them (the defence: no single operator fits).

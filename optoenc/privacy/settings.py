@@ -12,7 +12,7 @@ from ..settings import Settings, setting
 __all__ = ["ADMMConfig", "TikhonovConfig", "LearnedConfig", "PrivacyConfig", "AdversaryConfig", "ATTACKS", "METHODS"]
 
 #: Attack names, in table order.
-ATTACKS = ("admm", "learned", "plaintext", "pinv", "learned_one")
+ATTACKS = ("admm", "learned", "plaintext", "pinv", "learned_one", "admm_search")
 #: Reconstruction methods of `optoenc reconstruct`.
 METHODS = ("admm", "tikhonov", "pinv")
 
