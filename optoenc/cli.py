@@ -94,6 +94,8 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("what", nargs="?", default="fidelity", choices=("fidelity", "converge", "speed", "auto", "optics"),
                    help="which benchmark")
     b.add_argument("--out", metavar="DIR", help="also write CSV/PNG here")
+    b.add_argument("--docs", metavar="DIR", help="fidelity: also rewrite the generated blocks of DIR/benchmarks.md and "
+                   "DIR/fidelity.md from this run (CSV and plot under DIR/bench)")
     b.add_argument("--encoders", metavar="A,B", help="comma-separated encoders (default: every built-in)")
     b.add_argument("--presets", metavar="A,B", help="comma-separated presets (default: reference,default,fast)")
     b.add_argument("--digits", type=int, default=256, help="test digits the embedding error is measured on")
@@ -423,6 +425,7 @@ COMMANDS = {
 def main(argv: Sequence[str] | None = None) -> int:
     parser = _parser()
     args, extra = parser.parse_known_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)  # the command as typed (e.g. in generated docs)
     try:
         if args.version:
             return cmd_version()

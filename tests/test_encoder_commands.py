@@ -17,6 +17,13 @@ def test_simulate_writes_one_picture_per_paper_embedding(tmp_path, capsys):
     assert main(["simulate", "--encoder", "coded_aperture", "--out", str(out), "--count", "3", "--fidelity.preset=fast"]) == 0
     names = sorted(p.name for p in out.iterdir())
     assert names == sorted(f"coded_aperture_{h}x{w}.png" for h, w in devices.EMBEDDINGS)
+    # issue 8 sec. 5: the object's size on the grid is computed and printed, not quoted (|M| = d2 / d1 = 1/800)
+    from optoenc.encoders.coded_aperture import CodedAperture
+
+    px = CodedAperture(fidelity={"preset": "fast"}).object_height_px()
+    grid_pitch = devices.IMX477_PITCH * devices.IMX477_RESOLUTION[0] / 192
+    assert px == pytest.approx(devices.SCENE_HEIGHT * devices.MLS_D2 / devices.SCENE_DISTANCE / grid_pitch, rel=1e-12)
+    assert f"is {px:.1f} px tall on the 192 x 256 grid" in capsys.readouterr().out
 
 
 def test_learned_slm_run_changes_the_mask_and_exports_the_panel_image(tmp_path, quick_args):

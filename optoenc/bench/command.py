@@ -11,13 +11,15 @@ machine's load average (the machine may be shared).
 from __future__ import annotations
 
 import os
+import shlex
 import sys
+import time
 from pathlib import Path
 
 from ..errors import ConfigError
 from ..settings import parse_hw
 
-__all__ = ["main", "parse_grid", "load_line"]
+__all__ = ["main", "parse_grid", "load_line", "peak_rss_gb"]
 
 
 def parse_grid(key: str, text: str) -> tuple[int, int]:
@@ -32,6 +34,16 @@ def load_line(when: str) -> str:
     except OSError:  # pragma: no cover - not on POSIX
         return f"load average ({when}): unknown"
     return f"load average ({when}): {a:.2f} {b:.2f} {c:.2f} (1, 5, 15 min) on {os.cpu_count()} cores"
+
+
+def peak_rss_gb() -> float | None:
+    """This process's peak resident memory so far, GB (None where unknown)."""
+    try:
+        import resource
+    except ImportError:  # pragma: no cover - not on POSIX
+        return None
+    kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # kilobytes on Linux
+    return kb * (1 if sys.platform != "darwin" else 1 / 1024) / 1e6
 
 
 def _names(text: str) -> list[str]:
@@ -106,7 +118,19 @@ def main(args) -> int:
         print(f"  ({choice.considered} measured settings considered; rejected by the sampling diagnostics: "
               f"{', '.join(choice.rejected) or 'none'})")
         return 0
-    print(load_line("start"))
+    report: list[str] = []
+
+    def say(text: str = "") -> None:  # printed now, and kept for --docs
+        print(text, flush=True)
+        report.append(text)
+
+    started, t0 = time.strftime("%Y-%m-%d %H:%M %Z"), time.perf_counter()
+    docs = Path(args.docs) if getattr(args, "docs", None) else None
+    if docs is not None:
+        from . import docs as docs_mod
+
+        docs_mod.check_docs(docs)  # fail before an hour of measuring, not after
+    say(load_line("start"))
     everything = bench.encode_all() if args.encode_all else None  # first: everything cold
     with bar:
         rows = bench.run(encoders, paper=args.paper, progress=progress, **kw)
@@ -121,19 +145,32 @@ def main(args) -> int:
             autos[enc] = bench.choose(rows, enc, args.tolerance, args.safety)
         except ConfigError as err:
             autos[enc] = err.allowed
-    print(bench.format_table(rows))
+    say(bench.format_table(rows))
     if args.sweep:
-        print("\nEach knob alone from `default` (cost: learned encoders per training step, fixed per 10,000 digits):")
-        print(bench.format_sweep(rows))
+        say("\nEach knob alone from `default` (cost: learned encoders per training step, fixed per 10,000 digits):")
+        say(bench.format_sweep(rows))
     if speed_res is not None:
         from .speed import format_speed
 
-        print()
-        print(format_speed(speed_res))
-    print()
-    print(bench.format_outcomes(bench.outcomes(rows, everything, autos, speed=speed_res)))
-    print(load_line("end"))
+        say()
+        say(format_speed(speed_res))
+    say()
+    say(bench.format_outcomes(bench.outcomes(rows, everything, autos, speed=speed_res)))
+    say(load_line("end"))
+    peak = peak_rss_gb()
+    if peak is not None:
+        say(f"peak resident memory: {peak:.1f} GB")
     if out is not None:
         print(bench.write_csv(rows, out / "bench.csv"))
         print(bench.save_pareto(rows, out / "pareto.png"))
+    if docs is not None:
+        print(bench.write_csv(rows, docs / "bench" / "bench.csv"))
+        print(bench.save_pareto(rows, docs / "bench" / "pareto.png"))
+        command = shlex.join(["optoenc", *getattr(args, "argv", ["bench"])])
+        run = docs_mod.run_block("\n".join(report), command, started, time.perf_counter() - t0, peak, os.cpu_count())
+        for path in docs_mod.update_docs(docs, {
+            "benchmarks.md": {"run": run, "targets": docs_mod.targets_block(rows, speed_res)},
+            "fidelity.md": {"overrides": docs_mod.overrides_block(rows)},
+        }):  # fmt: skip
+            print(path)
     return 0

@@ -56,10 +56,13 @@ class CodedAperture(MaskEncoder):
     #: (|M| = d2 / d1 = 1/800) and the 30 um squares diffract light to angles a
     #: coarse field grid cannot carry, so both presets oversample the field
     #: (sub-pixel scene geometry comes with it). ``default``: 4.1 % at
-    #: 384 x 512 without, 0.76 % with 5x. ``reference``: 0.58 % with 3x at
-    #: 768 x 1024, 0.31 % with 5x (1536 x 2048 with 3x is 0.29 % and needs
-    #: ~11 GB; the 0.25 % goal is missed).
-    fidelity_presets = {"reference": {"psf_oversample": 5, "padding": "auto"}, "default": {"psf_oversample": 5}}
+    #: 384 x 512 without, 0.74 % with 5x. ``reference`` (768 x 1024): 0.58 %
+    #: with 3x, 0.317 % with 5x, 0.2405 % with 7x (a 0.88 um field; the
+    #: error follows the field pitch: 1536 x 2048 with 3x, 1.02 um, is
+    #: 0.293 %; 1152 x 1536 with 5x, 0.82 um, 0.227 % at ~1.5x the cost).
+    #: 7x costs a PSF of ~70 s instead of ~30 s and 5.4 GB peak instead of
+    #: 3.1 GB (2-core machine at load ~8).
+    fidelity_presets = {"reference": {"psf_oversample": 7, "padding": "auto"}, "default": {"psf_oversample": 5}}
 
     name = "coded_aperture"
     Config = CodedApertureConfig
