@@ -11,7 +11,7 @@ from pathlib import Path
 
 import torch
 
-from optoenc import pictures
+from optoenc.training import pictures
 from optoenc.config import compose
 from optoenc.encoders.slm import LearnedSLM
 from optoenc.training import fit

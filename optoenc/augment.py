@@ -25,8 +25,8 @@ import torch
 from torch import nn
 
 from .encoders.base import _coerce
+from .encoders.imaging import area_matrix
 from .errors import ConfigError
-from .imaging import area_matrix
 from .settings import Documented, Settings, setting
 
 __all__ = [

@@ -271,7 +271,7 @@ def cmd_plugins(args, extra) -> int:
 
 
 def cmd_psf(args, extra) -> int:
-    from . import pictures
+    from .training import pictures
     from .config import build_encoder
 
     out = _out_file(args.out)
@@ -306,7 +306,8 @@ def _out_dir(path: str) -> Path:
 def cmd_simulate(args, extra) -> int:
     import dataclasses
 
-    from . import devices, pictures
+    from . import devices
+    from .training import pictures
     from .config import build_encoder
     from .plugins import get_registry
 

@@ -26,9 +26,9 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf import errors as oc_errors
 
 from . import limits
+from .encoders.geometry import SceneConfig, SensorConfig
 from .errors import ConfigError
 from .fidelity.knobs import FIDELITY_PRESETS, FidelityConfig
-from .geometry import SceneConfig, SensorConfig
 from .plugins import get_registry
 from .privacy.settings import AdversaryConfig
 from .settings import Settings, setting

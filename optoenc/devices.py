@@ -3,7 +3,8 @@
 The one source of truth for every device constant: the sensor, the scene,
 the LCD (ST7735R), the lens, the coded aperture and the phase mask.
 Encoders, sensors and tests read these names, never literals
-(:mod:`optoenc.encoders.constants` re-exports the encoder devices' names).
+(``optoenc.encoders.constants``, the old name, is this same module: see
+:data:`optoenc.MOVED`).
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ from PIL import Image
 
 from optoenc.encoders.diffuser import Diffuser
 from optoenc.errors import ConfigError
-from optoenc import psf_files
+from optoenc.encoders import psf_files
 
 SMALL = {"fidelity": {"grid": (48, 64)}, "sensor": {"embedding": (6, 8)}}
 

@@ -8,7 +8,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from optoenc import imaging as im
+from optoenc.encoders import imaging as im
 
 DT = torch.float64
 

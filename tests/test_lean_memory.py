@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from optoenc import imaging as im
+from optoenc.encoders import imaging as im
 
 DT = torch.float64
 

@@ -140,7 +140,7 @@ def test_documented_mask_example_is_the_zoneplate_plugin_and_conforms():
 
 
 def test_class_names_title_the_measurement_pictures(tmp_path, monkeypatch):
-    from optoenc import pictures
+    from optoenc.training import pictures
 
     titles = []
     real = pictures._save

@@ -6,7 +6,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from optoenc import imaging as im
+from optoenc.encoders import imaging as im
 from optoenc.encoders.coded_aperture import CodedAperture
 from optoenc.encoders.slm import FixedSLM
 from optoenc.errors import ConfigError

@@ -142,7 +142,7 @@ def _copy_cells(planned, out: Path) -> None:
 
 
 def _learned_psfs(planned, out: Path) -> Path | None:
-    from optoenc.pictures import _figure, _save
+    from optoenc.training.pictures import _figure, _save
 
     pics = [(p.cell.name, p.path / "pictures" / "psf_final.png") for p in planned
             if p.run.names["encoder"].startswith("learned") and (p.path / "pictures" / "psf_final.png").is_file()]
@@ -165,7 +165,7 @@ def _learned_psfs(planned, out: Path) -> Path | None:
 def _embeddings(planned, out: Path, n: int = 4) -> Path | None:
     """The same test digits through every encoder at every size (learned ones: their trained checkpoint)."""
     from optoenc.config import build_encoder, compose
-    from optoenc.pictures import _figure, _save
+    from optoenc.training.pictures import _figure, _save
     from optoenc.plugins import get_registry
     from optoenc.training import checkpoint_path, load_encoder
 

@@ -243,7 +243,7 @@ def _rows(reader) -> list[dict]:
 
 def save_pareto(rows: Iterable[dict], path) -> Path:
     """Log-log Pareto plot: cost vs error per encoder (learned: time per step; fixed: encode 10k digits)."""
-    from ..pictures import _figure, _save
+    from ..training.pictures import _figure, _save
 
     rows = [r for r in rows if r["kind"] != "truth" and r["error"] is not None and r["error"] > 0]
     plt, fig = _figure((12, 5))

@@ -25,7 +25,7 @@ simulation:
   the full sensor (:mod:`optoenc.bench.converge`).
 
 The embedding of a piecewise-constant scene with a pixel-integrated PSF is
-then the exact linear operator (:func:`optoenc.imaging.scene_operator`) on
+then the exact linear operator (:func:`optoenc.encoders.imaging.scene_operator`) on
 the truth's grid: place, convolve and integrate, with the PSF taken constant
 within each of its (1.55 um) pixels. That last step and the pixel quadrature
 are the truth's only approximations; :func:`truth` measures them by
@@ -54,7 +54,8 @@ from typing import Optional
 import numpy as np
 import torch
 
-from .. import devices, imaging
+from .. import devices
+from ..encoders import imaging
 
 __all__ = [
     "RectCells", "rect_cells", "fresnel_psf", "fresnel_vs_exact_1d", "kernel_error", "SENSOR_GRID", "truth_setting",
@@ -91,7 +92,7 @@ def _edges(n: int, pitch: float, open_size: float) -> np.ndarray:
 
 def rect_cells(enc) -> Optional[RectCells]:
     """The :class:`RectCells` of a built-in piecewise-constant amplitude encoder, or None for any other."""
-    from ..encoders import constants as K
+    from .. import devices as K
     from ..encoders.coded_aperture import CodedAperture
     from ..encoders.slm import _SLMBase
 
@@ -170,7 +171,7 @@ def embed_with_psf(psf: torch.Tensor, grid_spacing: tuple[float, float], images:
                    embedding: tuple[int, int]) -> torch.Tensor:
     """Noise-free float64 embeddings ``(B, C, a, b)`` of ``images`` for a pixel-integrated PSF ``(C, H, W)``.
 
-    The exact scene operator (:func:`optoenc.imaging.scene_operator`) on the
+    The exact scene operator (:func:`optoenc.encoders.imaging.scene_operator`) on the
     PSF's grid: the scene is a piecewise-constant surface ``height_m`` tall on
     the sensor, centred and inverted, placed with exact areas.
     """

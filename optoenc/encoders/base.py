@@ -3,7 +3,7 @@
 An encoder holds its physical settings (``Config``, SI units) and parameters,
 and supplies one thing: its intensity PSF on the simulation grid
 (:meth:`OpticalEncoder.compute_psf`). The base class does the rest with the
-shared imaging steps of :mod:`optoenc.imaging`: placing the scene in the
+shared imaging steps of :mod:`optoenc.encoders.imaging`: placing the scene in the
 object plane (magnification ``d2 / d1``), convolving, integrating over the
 sensor pixels and adding noise.
 """
@@ -19,11 +19,12 @@ from typing import Any, ClassVar, Mapping
 import torch
 from torch import nn
 
-from .. import imaging, limits
+from .. import limits
 from ..errors import ConfigError, DataError
 from ..fidelity.knobs import FidelityConfig
-from ..geometry import Geometry, SceneConfig, SensorConfig
 from ..settings import Documented, Settings, setting
+from . import imaging
+from .geometry import Geometry, SceneConfig, SensorConfig
 
 __all__ = ["EncoderConfig", "OpticalEncoder"]
 
@@ -131,7 +132,7 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         the ratios matter; one shared factor is removed by :meth:`psf`). A
         PSF whose channels carry no such meaning (a measured file) is
         normalised per channel here with
-        :func:`optoenc.imaging.normalize_channels`.
+        :func:`optoenc.encoders.imaging.normalize_channels`.
 
         Returns:
             ``(C, H, W)`` non-negative tensor in ``self.optics_dtype``, with
@@ -223,7 +224,7 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
 
         The spectral channels of :meth:`compute_psf` keep their relative
         power (one normalisation shared by all channels,
-        :func:`optoenc.imaging.normalize_psf`): a gray sensor sees
+        :func:`optoenc.encoders.imaging.normalize_psf`): a gray sensor sees
         ``sum_c w_c PSF_c`` with :data:`optoenc.devices.GRAYSCALE_WEIGHTS`,
         summing to one; an RGB sensor sees the channels, whose weighted sums
         add to one. The PSF is recomputed only when a parameter changes (once
@@ -266,7 +267,7 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         """The ``(C, a, b, h, w)`` matrix from scene pixels to embedding pixels (noise-free).
 
         Exact for a piecewise-constant scene: it equals place -> convolve ->
-        integrate on the simulation grid (see :mod:`optoenc.imaging`).
+        integrate on the simulation grid (see :mod:`optoenc.encoders.imaging`).
         """
         psf = self.psf()
         ry, rx = self._correlations(tuple(scene_shape), self.object_height_px(height), psf.device)

@@ -18,9 +18,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from .. import devices as K
 from ..optics import cell_mask
 from ..settings import setting
-from . import constants as K
 from .base import EncoderConfig
 from .mask import MaskEncoder
 

@@ -8,9 +8,9 @@ from typing import Optional
 
 import torch
 
-from .. import psf_files
 from ..errors import ConfigError
 from ..settings import setting
+from . import psf_files
 from .base import EncoderConfig, OpticalEncoder
 
 __all__ = ["Diffuser", "DiffuserConfig"]

@@ -39,10 +39,10 @@ import numpy as np
 import torch
 from scipy.special import j1
 
-from .. import devices, psf_files
+from .. import devices
 from ..errors import ConfigError, PhysicsError
 from ..settings import setting
-from . import constants as K
+from . import psf_files
 from .base import EncoderConfig, OpticalEncoder
 
 __all__ = ["LensConfig", "Lens", "airy_pixel_psf", "airy_tail"]
@@ -122,12 +122,12 @@ def _with_tail(win: np.ndarray, grid: tuple[int, int], spacing: tuple[float, flo
 
 @dataclass
 class LensConfig(EncoderConfig):
-    d2: float = setting(K.LENS_D2, "lens-to-sensor distance d2", unit="m", gt=0)
+    d2: float = setting(devices.LENS_D2, "lens-to-sensor distance d2", unit="m", gt=0)
     focus_distance: float = setting(
-        K.LENS_FOCUS, "object distance the lens is focused at, once (sets f = 1 / (1 / focus + 1 / d2)); "
+        devices.LENS_FOCUS, "object distance the lens is focused at, once (sets f = 1 / (1 / focus + 1 / d2)); "
         "a scene at another distance d1 is defocused", unit="m", gt=0
     )
-    f_number: float = setting(K.LENS_F_NUMBER, "f-number N = f / D of the circular aperture", gt=0)
+    f_number: float = setting(devices.LENS_F_NUMBER, "f-number N = f / D of the circular aperture", gt=0)
     psf_path: Optional[str] = setting(
         None, "measured lens PSF (PNG, TIFF or NPY) spanning the sensor; null: the diffraction-limited thin lens"
     )

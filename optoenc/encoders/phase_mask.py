@@ -47,7 +47,6 @@ from .. import devices
 from ..errors import ConfigError
 from ..optics import phase_mask, rect_aperture
 from ..settings import setting
-from . import constants as K
 from .base import EncoderConfig
 from .mask import MaskEncoder
 
@@ -96,7 +95,7 @@ def bilinear_matrix(n_nodes: int, cell: float, n_grid: int, spacing: float) -> t
 
 @dataclass
 class PhaseMaskConfig(EncoderConfig):
-    d2: float = setting(K.PHASE_MASK_D2, "phase-plate-to-sensor distance d2", unit="m", gt=0)
+    d2: float = setting(devices.PHASE_MASK_D2, "phase-plate-to-sensor distance d2", unit="m", gt=0)
     aperture: float = setting(0.8, "fraction of the sensor height and width covered by the plate", gt=0, le=1)
     feature_size: float = setting(15e-6, "side of one height-map cell (random or learned maps)", unit="m", gt=0)
     max_height: float = setting(2e-6, "largest surface height", unit="m", gt=0)

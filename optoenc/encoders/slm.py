@@ -19,9 +19,9 @@ import numpy as np
 import torch
 from torch import nn
 
+from .. import devices as K
 from ..errors import ConfigError
 from ..settings import setting
-from . import constants as K
 from . import slm_panel
 from .base import EncoderConfig
 from .mask import MaskEncoder

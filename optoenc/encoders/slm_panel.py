@@ -35,9 +35,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from .. import devices as K
 from ..errors import ConfigError
 from ..optics import cell_mask
-from . import constants as K
 
 __all__ = ["PanelBlock", "active_block", "rasterise", "full_panel", "to_panel_image", "level_counts"]
 

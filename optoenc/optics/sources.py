@@ -1,7 +1,7 @@
 """Input fields: pixel coordinates, plane waves, point sources (spherical waves), Gaussian beams.
 
 Coordinates are pixel centres with the optical axis at index ``(H // 2, W // 2)``
-(the PSF convention of :mod:`optoenc.imaging`): ``y_i = (i - H // 2) dy``,
+(the PSF convention of :mod:`optoenc.encoders.imaging`): ``y_i = (i - H // 2) dy``,
 ``x_j = (j - W // 2) dx``. Phases are computed in float64 and the field is cast
 once to the requested complex dtype.
 """

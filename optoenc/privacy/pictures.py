@@ -7,7 +7,7 @@ from typing import Sequence
 
 import torch
 
-from ..pictures import _figure, _save
+from ..training.pictures import _figure, _save
 
 __all__ = ["save_rows", "save_frontier"]
 

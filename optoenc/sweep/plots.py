@@ -6,7 +6,7 @@ from pathlib import Path
 from typing import Any
 
 from ..training.callbacks import read_metrics
-from ..pictures import _figure, _save
+from ..training.pictures import _figure, _save
 from ..training.rundir import RUN_FILES
 
 __all__ = ["sweep_plots"]

@@ -18,12 +18,12 @@ from typing import Any
 import torch
 
 
-from .. import pictures
 from ..config import RunConfig, build_encoder
 from ..errors import ConfigError, DataError, Interrupted
 from ..fidelity.knobs import FidelityConfig
 from ..plugins import get_registry
 from ..settings import to_dict
+from . import pictures
 from . import cache
 from .loaders import encode, make_loader
 from .module import EncoderClassifier

@@ -10,7 +10,8 @@ from __future__ import annotations
 import pytest
 import torch
 
-from optoenc import devices, imaging
+from optoenc import devices
+from optoenc.encoders import imaging
 from optoenc.encoders.slm import FixedSLM, LearnedSLM
 
 pytestmark = pytest.mark.filterwarnings("ignore::optoenc.optics.SamplingWarning")
@@ -104,7 +105,7 @@ def test_learned_slm_gets_a_gradient_for_each_colours_overall_level():
 def test_measured_psf_channels_are_normalised_on_their_own(tmp_path):
     import numpy as np
 
-    from optoenc import psf_files
+    from optoenc.encoders import psf_files
 
     arr = np.zeros((3, 30, 40))
     arr[0, 10, 10], arr[1, 15, 20], arr[2, 20, 30] = 1.0, 5.0, 50.0  # a lab source's colour balance

@@ -7,7 +7,7 @@ import pytest
 import torch
 from scipy.special import j1
 
-from optoenc.encoders import constants as K
+from optoenc import devices as K
 from optoenc.encoders.lens import Lens, airy_pixel_psf
 from optoenc.errors import ConfigError
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from optoenc import imaging
+from optoenc.encoders import imaging
 from optoenc.encoders.coded_aperture import CodedAperture
 from optoenc.encoders.lens import Lens
 from optoenc.encoders.phase_mask import LearnedPhaseMask, PhaseMask

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from optoenc import imaging
-from optoenc.encoders import constants as K
+from optoenc.encoders import imaging
+from optoenc import devices as K
 from optoenc.encoders import slm_panel
 from optoenc.encoders.slm import FixedSLM, LearnedSLM, panel_image
 from optoenc.errors import ConfigError

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from optoenc import devices
-from optoenc.encoders import constants as K
+from optoenc import devices as K
 from optoenc.encoders import slm_panel
 
 SIZE = tuple(n * devices.IMX477_PITCH for n in devices.IMX477_RESOLUTION)

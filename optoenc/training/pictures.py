@@ -9,7 +9,7 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from .training.rundir import atomic_write_bytes
+from .rundir import atomic_write_bytes
 
 __all__ = ["spectral_psf", "psf_rgb", "save_psf", "save_mask", "mask_spacing", "save_measurements", "save_curves"]
 
@@ -32,7 +32,7 @@ def _save(plt, fig, path: str | Path) -> Path:
 
 def spectral_psf(encoder) -> torch.Tensor:
     """The encoder's PSF per wavelength (R, G, B; or 1 channel if achromatic), channels keeping their relative power."""
-    from .imaging import normalize_psf
+    from ..encoders.imaging import normalize_psf
 
     with torch.no_grad():
         return normalize_psf(encoder.compute_psf().detach(), name=f"encoder {encoder.name}")
@@ -49,8 +49,8 @@ def psf_rgb(psf: torch.Tensor, gamma: float = 0.5) -> np.ndarray:
     p = p / p.max().clamp_min(1e-300)
     if p.shape[0] == 3:
         try:
-            from .optics.colour import spectral_to_srgb  # type: ignore
-            from . import devices
+            from ..optics.colour import spectral_to_srgb  # type: ignore
+            from .. import devices
 
             img = spectral_to_srgb(p, devices.WAVELENGTHS_RGB)
             img = img.numpy() if hasattr(img, "numpy") else np.asarray(img)
@@ -144,7 +144,7 @@ def save_mask(
     ax = fig.add_subplot(111)
     ext = _extent_mm(m.shape, spacing)
     if m.is_complex():  # a phase mask: show the phase delay at the middle (green) wavelength
-        from . import devices
+        from .. import devices
 
         c = m[m.shape[0] // 2] if m.dim() == 3 else m
         phase = torch.angle(c).double().masked_fill(c.abs() == 0, float("nan"))  # opaque: no phase
@@ -217,7 +217,7 @@ def _mappable():
 
 def save_curves(path: str | Path, metrics_csv: str | Path) -> Path | None:
     """Loss and accuracy per epoch from a run's ``metrics.csv``."""
-    from .training.callbacks import read_metrics
+    from .callbacks import read_metrics
 
     rows = read_metrics(metrics_csv)
     if not rows:

@@ -30,8 +30,8 @@ import warnings
 import torch
 import torch.nn.functional as F
 
-from .errors import ConfigError, PhysicsError
-from .optics._common import next_fast_size
+from ..errors import ConfigError, PhysicsError
+from ..optics._common import next_fast_size
 
 __all__ = [
     "area_matrix",
@@ -354,7 +354,7 @@ def _spectral_weights(psf: torch.Tensor, weights) -> torch.Tensor:
     """``(C, 1, 1)`` spectral weights of a ``(C, H, W)`` PSF (default: the gray sensor's for 3 channels)."""
     C = psf.shape[-3]
     if weights is None:
-        from .devices import GRAYSCALE_WEIGHTS
+        from ..devices import GRAYSCALE_WEIGHTS
 
         weights = GRAYSCALE_WEIGHTS if C == 3 else (1.0,) * C
     w = torch.as_tensor(weights, dtype=psf.dtype, device=psf.device).reshape(-1)

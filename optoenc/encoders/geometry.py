@@ -13,10 +13,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Optional
 
-from . import devices
-from .errors import ConfigError
-from .fidelity.knobs import FIDELITY_PRESETS, KNOB_NAMES, FidelityConfig, Knobs, parse_padding
-from .settings import Settings, setting
+from .. import devices
+from ..errors import ConfigError
+from ..fidelity.knobs import FIDELITY_PRESETS, KNOB_NAMES, FidelityConfig, Knobs, parse_padding
+from ..settings import Settings, setting
 
 #: The fidelity names are :mod:`optoenc.fidelity.knobs`'s, exported here too (their old home).
 __all__ = ["SceneConfig", "SensorConfig", "Geometry", "FidelityConfig", "FIDELITY_PRESETS", "KNOB_NAMES", "Knobs", "parse_padding"]

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .errors import ConfigError
+from ..errors import ConfigError
 from .imaging import area_matrix, normalize_channels
 
 __all__ = ["bundled_psf_path", "read_psf", "subtract_background", "resample_area", "file_digest", "measured_psf"]
