@@ -76,3 +76,19 @@ def test_cli_bench_docs_without_the_pages_or_blocks_fails_before_measuring(tmp_p
         (tmp_path / page).write_text("prose without generated blocks\n")
     assert main(["bench", "--encoders", "diffuser", "--no-encode-all", "--docs", str(tmp_path)]) == 2
     assert "exactly one block" in capsys.readouterr().err
+
+
+def test_cli_bench_speed_threads_reach_the_timing_and_are_checked(monkeypatch, capsys):
+    from optoenc.bench import speed
+
+    seen = {}
+
+    def fake(encoder, preset, threads=(1, 2), repeats=5, **kw):
+        seen["threads"] = threads
+        return {"encoder": encoder, "preset": preset, "batch": 200, "repeats": repeats, "threads": {}}
+
+    monkeypatch.setattr(speed, "interleaved", fake)
+    assert main(["bench", "speed", "--threads", "1", "--repeats", "1"]) == 0
+    assert seen["threads"] == (1,)
+    assert main(["bench", "speed", "--threads", "0,x"]) == 2
+    assert "--threads" in capsys.readouterr().err

@@ -46,6 +46,18 @@ def peak_rss_gb() -> float | None:
     return kb * (1 if sys.platform != "darwin" else 1 / 1024) / 1e6
 
 
+def _threads(args) -> tuple[int, ...]:
+    """``--threads``: positive thread counts, or a ConfigError."""
+    text = getattr(args, "threads", "1,2")
+    try:
+        out = tuple(int(v) for v in _names(text))
+    except ValueError:
+        out = ()
+    if not out or min(out) < 1:
+        raise ConfigError("--threads", text, "comma-separated thread counts >= 1, e.g. 1,2")
+    return out
+
+
 def _names(text: str) -> list[str]:
     return [v.strip() for v in text.split(",") if v.strip()]
 
@@ -71,6 +83,7 @@ def main(args) -> int:
         bar.refresh()
 
     out = Path(args.out) if args.out else None
+    threads = _threads(args)  # checked before anything is measured
     encoders = _names(args.encoders) if args.encoders else bench.ENCODERS
     if args.what == "converge":
         from . import converge
@@ -88,7 +101,8 @@ def main(args) -> int:
 
         print(load_line("start"))
         with bar:
-            res = speed.interleaved(args.encoder or "learned_slm", "default", repeats=args.repeats, progress=progress)
+            res = speed.interleaved(args.encoder or "learned_slm", "default", threads=threads, repeats=args.repeats,
+                                    progress=progress)
         print(speed.format_speed(res))
         print(load_line("end"))
         return 0
@@ -138,7 +152,7 @@ def main(args) -> int:
     if args.speed and args.paper and "learned_slm" in encoders:
         from . import speed
 
-        speed_res = speed.interleaved("learned_slm", "default", repeats=args.repeats)
+        speed_res = speed.interleaved("learned_slm", "default", threads=threads, repeats=args.repeats)
     autos = {}
     for enc in encoders:
         try:
