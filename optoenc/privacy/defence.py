@@ -11,6 +11,9 @@ change against the same attack on the baseline:
 * ``reid_change``, ``readability_change``, ``acc_change``: differences in
   rate (points / 100).
 
+``admm_search`` and ``learned_one`` (only against ``K > 1``) are compared with
+the baseline's ``admm`` and ``learned``.
+
 Written by ``optoenc privacy --sweep DIR --defence`` to
 ``DIR/privacy/defence.{csv,md}`` (docs/results/privacy_defence.csv).
 """
@@ -45,8 +48,13 @@ def cell_settings(run_dir: str | Path) -> dict[str, Any]:
     }
 
 
-def _key(r: dict) -> tuple:
-    return (r["encoder"], r["embedding"], r["attack"], str(r.get("n_pairs", "")))
+#: Attacks that exist only against a K-pattern camera, compared with the baseline's attack of the same kind.
+BASELINE_ATTACK = {"admm_search": "admm", "learned_one": "learned"}
+
+
+def _key(r: dict, baseline: bool = False) -> tuple:
+    attack = r["attack"] if baseline else BASELINE_ATTACK.get(r["attack"], r["attack"])
+    return (r["encoder"], r["embedding"], attack, str(r.get("n_pairs", "")))
 
 
 def defence_rows(cells: Sequence[tuple[str | Path, Sequence[dict]]]) -> list[dict[str, Any]]:
@@ -59,7 +67,7 @@ def defence_rows(cells: Sequence[tuple[str | Path, Sequence[dict]]]) -> list[dic
     for run_dir, rows in cells:
         s = cell_settings(run_dir)
         tagged += [{**r, **s} for r in rows]
-    base = {_key(r): r for r in tagged if r["patterns"] == 1 and r["adversary_weight"] == 0}
+    base = {_key(r, baseline=True): r for r in tagged if r["patterns"] == 1 and r["adversary_weight"] == 0}
     out = []
     for r in sorted(tagged, key=lambda r: (r["embedding"], r["patterns"], r["adversary_weight"])):
         row = dict(r)

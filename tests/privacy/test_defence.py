@@ -28,7 +28,13 @@ def test_defence_rows_against_the_baseline(tmp_path):
     cells = [(_run_dir(tmp_path, "k4", 4, 0), _rows(14.0, 0.5, 0.25, 0.94)),
              (_run_dir(tmp_path, "k1", 1, 0), _rows(28.0, 1.0, 1.0, 0.95)),
              (_run_dir(tmp_path, "l10", 1, 10), _rows(21.0, 0.8, 0.5, 0.93))]
-    rows = {(r["patterns"], r["adversary_weight"]): r for r in defence_rows(cells)}
+    one = _rows(7.0, 0.25, 0.0, 0.94)[0] | {"attack": "learned_one"}
+    cells[0][1].append(one)
+    cells[1][1].append(_rows(14.0, 0.5, 0.5, 0.95)[0] | {"attack": "learned"})
+    out = defence_rows(cells)
+    # learned_one (K = 4 only) is compared with the baseline's learned attacker
+    assert [r["psnr_drop"] for r in out if r["attack"] == "learned_one"] == [pytest.approx(0.5)]
+    rows = {(r["patterns"], r["adversary_weight"]): r for r in out if r["attack"] == "admm"}
     base, k4, lam = rows[(1, 0.0)], rows[(4, 0.0)], rows[(1, 10.0)]
     assert base["psnr_drop"] == 0 and base["epochs"] == 5
     # Relative drops 1 - value / baseline, rate changes in absolute terms (exact decimal arithmetic aside).
