@@ -23,7 +23,7 @@ from pathlib import Path
 import torch
 
 from optoenc import sweep
-from optoenc.rundir import atomic_write_text
+from optoenc.training.rundir import atomic_write_text
 
 T1_COLUMNS = ("encoder", "embedding", "decoder", "seeds", "test_acc", "test_acc_std", "best_test_acc",
               "reference_test_acc", "paper_acc", "diff_vs_paper")

@@ -5,7 +5,7 @@ encoder module (and torch) is imported inside the hook, so listing plugins
 costs nothing until a registry is used.
 """
 
-from optoenc.hookspecs import hookimpl
+from optoenc import hookimpl
 
 
 @hookimpl

@@ -1,6 +1,6 @@
 """The plugin module named by the ``optoenc`` entry point: hook implementations only."""
 
-from optoenc.hookspecs import hookimpl
+from optoenc import hookimpl
 
 
 @hookimpl
