@@ -10,6 +10,10 @@ Threat models of the follow-up work (Bezzam et al. 2022; OpEnCam 2023):
   the attacker estimates the operator by ridge regression
   (:func:`estimate_operator`) and then runs ADMM with the estimate.
 * ``pinv``: the truncated-SVD pseudo-inverse (the natural attack on a lens).
+
+Against a variable-pattern camera (``encoder.patterns > 1``) the same
+attackers run per pattern, plus ``admm_search`` and ``learned_one``: see
+:mod:`optoenc.privacy.patterns` for their threat models.
 """
 
 from __future__ import annotations
