@@ -166,7 +166,6 @@ def _quiet_lightning() -> None:
 
 def cmd_fit(args, extra) -> int:
     from .training.rundir import RUN_FILES, new_run_dir, remove_if_empty
-    from .training.run import fit
 
     if args.resume:
         run_dir = Path(args.resume)
@@ -189,6 +188,8 @@ def cmd_fit(args, extra) -> int:
         stem = f"{run.names['encoder']}-{run.names['decoder']}"
         run_dir = new_run_dir(run.output.root, run.output.name, stem)
         os.environ[_RUN_DIR_ENV] = str(run_dir)  # inherited by DDP workers (strategy=ddp re-runs this command)
+    from .training.run import fit  # Lightning: imported once the settings check out (a refusal takes ~1 s, not ~5)
+
     _quiet_lightning()
     print(f"run directory: {run_dir}", file=sys.stderr)
     try:

@@ -34,6 +34,7 @@ __all__ = [
     "read_checkpoint",
     "mark_interrupted",
     "clear_interrupted",
+    "mark_failed",
     "raise_on_signals",
     "interrupted_note",
 ]
@@ -135,6 +136,7 @@ def read_checkpoint(path: Path, what: str = "checkpoint") -> dict:
 
 def mark_interrupted(run_dir: Path, signal_name: str, epoch: int, resume_command: str) -> Path:
     """Write ``interrupted.json`` into the run directory (removed when the run completes)."""
+    (Path(run_dir) / RUN_FILES["failed"]).unlink(missing_ok=True)
     return write_json(
         Path(run_dir) / RUN_FILES["interrupted"],
         {"signal": signal_name, "epoch": epoch, "time": time.strftime("%Y-%m-%d %H:%M:%S"), "resume": resume_command},
@@ -142,7 +144,24 @@ def mark_interrupted(run_dir: Path, signal_name: str, epoch: int, resume_command
 
 
 def clear_interrupted(run_dir: Path) -> None:
+    """Remove the run's ``interrupted.json`` and ``failed.json`` markers (the run completed)."""
+    for marker in ("interrupted", "failed"):
+        (Path(run_dir) / RUN_FILES[marker]).unlink(missing_ok=True)
+
+
+def mark_failed(run_dir: Path, err: BaseException, epoch: int) -> Path:
+    """Write ``failed.json`` into the run directory: the error that stopped training (removed when the run completes).
+
+    Args:
+        epoch: the 0-based epoch in progress when the run failed.
+    """
     (Path(run_dir) / RUN_FILES["interrupted"]).unlink(missing_ok=True)
+    line = (str(err).strip().splitlines() or [""])[0]
+    return write_json(
+        Path(run_dir) / RUN_FILES["failed"],
+        {"state": "failed", "error": type(err).__name__, "message": line, "epoch": epoch,
+         "exit_code": getattr(err, "exit_code", 1), "time": time.strftime("%Y-%m-%d %H:%M:%S")},
+    )
 
 
 def interrupted_info(run_dir: Path) -> dict | None:

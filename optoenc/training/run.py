@@ -19,7 +19,7 @@ import torch
 
 
 from ..config import RunConfig, build_encoder
-from ..errors import ConfigError, DataError, Interrupted
+from ..errors import ConfigError, DataError, Interrupted, OptoencError
 from ..fidelity.knobs import FidelityConfig
 from ..plugins import get_registry
 from ..settings import to_dict
@@ -27,7 +27,7 @@ from . import pictures
 from . import cache
 from .loaders import encode, make_loader
 from .module import EncoderClassifier
-from .resume import clear_interrupted, interrupted_note, raise_on_signals, read_checkpoint
+from .resume import clear_interrupted, interrupted_note, mark_failed, raise_on_signals, read_checkpoint
 from .rundir import RUN_FILES, atomic_write_text, write_json
 
 __all__ = ["Parts", "build", "fit", "evaluate", "checkpoint_path", "load_encoder", "verify"]
@@ -243,6 +243,11 @@ def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> di
             trainer.fit(parts.module, parts.loaders["train"], parts.loaders["val"], ckpt_path=str(ckpt) if resume else None)
     except Interrupted as err:
         err.where = _interrupted(run, run_dir, trainer, err)
+        raise
+    except Exception as err:  # e.g. TrainingDiverged: the run directory says it failed, and why
+        marker = mark_failed(run_dir, err, trainer.current_epoch)
+        if isinstance(err, OptoencError):  # the CLI's one line says where that is
+            err.args = (f"{err}; the run is marked failed in {marker}",)
         raise
     best = checkpoint_path(run_dir, "best")
     best_val = float(trainer.checkpoint_callback.best_model_score or float("nan"))

@@ -21,6 +21,7 @@ RUN_FILES = {
     "checkpoints": "checkpoints",
     "pictures": "pictures",
     "interrupted": "interrupted.json",
+    "failed": "failed.json",
 }
 
 

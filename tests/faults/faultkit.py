@@ -1,6 +1,7 @@
 """Helpers of the fault-injection suite: bad input and faults through the real `optoenc` command and the Python API.
 
-CLI cases run the console script in a subprocess with tiny settings (a few
+Every CLI case runs the console script in a subprocess (exit code, streams and
+messages exactly as a person sees them) with tiny settings (a few
 hundred digits, one epoch, a 6 x 8 embedding of the fixed diffuser, whose
 embeddings the cache holds after the first run), so each takes seconds.
 """
@@ -32,30 +33,14 @@ def run(*args, cwd=None, timeout=300, **kw) -> subprocess.CompletedProcess:
     return subprocess.run([*optoenc_cmd(), *map(str, args)], capture_output=True, text=True, cwd=cwd, timeout=timeout, **kw)
 
 
-def one_line_error(proc: subprocess.CompletedProcess, code: int = 2) -> str:
-    """Assert the CLI failed with ``code`` and one ``optoenc: error:`` line, no traceback; return that line."""
+def one_line_error(proc: subprocess.CompletedProcess, code: int = 2, stdout: str = "") -> str:
+    """Assert the command failed with ``code``, no traceback, nothing on stdout but ``stdout``, and stderr holding
+    one ``optoenc: error:`` line (after the ``run directory:`` line of a run that started); return that line."""
     err = proc.stderr.strip()
     assert proc.returncode == code, (proc.returncode, proc.stdout[-2000:], err[-3000:])
     assert "Traceback" not in err, err
-    last = err.splitlines()[-1]
-    assert last.startswith("optoenc: error:"), err
-    return last
-
-
-
-
-def main(*args) -> subprocess.CompletedProcess:
-    """``optoenc ARGS`` in this process (``optoenc.cli.main``): the same code path, without the start-up cost.
-
-    Used for the many variants of a case; each cause also runs the real
-    command in a subprocess (:func:`run`).
-    """
-    import contextlib
-    import io
-
-    from optoenc.cli import main as cli_main
-
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = cli_main([str(a) for a in args])
-    return subprocess.CompletedProcess(["optoenc", *map(str, args)], code, out.getvalue(), err.getvalue())
+    lines = err.splitlines()
+    assert lines and lines[-1].startswith("optoenc: error:"), err
+    assert all(ln.startswith("run directory: ") for ln in lines[:-1]), err  # one line, nothing else on stderr
+    assert proc.stdout == stdout, proc.stdout[-2000:]  # errors go to stderr only
+    return lines[-1]

@@ -8,7 +8,7 @@ from optoenc.config import compose
 from optoenc.errors import ConfigError
 from omegaconf import OmegaConf
 
-from faultkit import main, one_line_error, run
+from faultkit import one_line_error, run
 
 
 @pytest.mark.parametrize(
@@ -49,7 +49,7 @@ def test_yaml_list_top_level_and_unresolved_interpolation():
 def test_cli_config_files(tmp_path, text, needles):
     cfg = tmp_path / "c.yaml"
     cfg.write_text(text)
-    line = one_line_error((run if text.startswith("-") else main)("fit", "--config", cfg, "--print-config"))
+    line = one_line_error(run("fit", "--config", cfg, "--print-config"))
     for n in needles:
         assert n in line
 
@@ -59,6 +59,6 @@ def test_cli_accelerator_without_gpu_is_a_config_error(tmp_path, tiny):
 
     if torch.cuda.is_available():
         pytest.skip("this machine has a GPU")
-    line = one_line_error(main("fit", *tiny, "--trainer.accelerator=gpu"))
+    line = one_line_error(run("fit", *tiny, "--trainer.accelerator=gpu"))
     assert "trainer.accelerator" in line and "gpu" in line
     assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())  # no stub run directory

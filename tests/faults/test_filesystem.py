@@ -10,7 +10,7 @@ import pytest
 from optoenc.errors import ConfigError, DataError
 from optoenc.rundir import atomic_write_bytes, new_run_dir
 
-from faultkit import main, one_line_error, run
+from faultkit import one_line_error, run
 
 
 def _mode(p) -> int:
@@ -27,6 +27,19 @@ def test_atomic_write_gets_the_umask_permissions(tmp_path, umask):
     finally:
         os.umask(old)
     assert _mode(p) == _mode(tmp_path / "plain.bin") == 0o666 & ~umask  # mkstemp alone gives 0o600
+
+
+def test_cache_entries_get_the_umask_permissions(tmp_path):
+    import torch
+
+    from optoenc import cache
+
+    old = os.umask(0o022)
+    try:
+        path = cache.store("cd" * 32, {"train": torch.ones(2)}, root=str(tmp_path))  # used to be -rw-------
+    finally:
+        os.umask(old)
+    assert _mode(path) == 0o644
 
 
 def test_atomic_write_keeps_the_mode_of_the_file_it_replaces(tmp_path):
@@ -48,6 +61,9 @@ def test_output_root_that_is_a_file_or_unwritable(tmp_path):
     with pytest.raises(ConfigError, match="is a file") as err:
         new_run_dir(f, None, "x")
     assert err.value.key == "output.root"
+    with pytest.raises(ConfigError, match="is a file") as err:  # a file in the way further up
+        new_run_dir(f / "runs" / "deeper", None, "x")
+    assert err.value.key == "output.root"
     with pytest.raises(ConfigError) as err:  # /proc refuses new folders even to root
         new_run_dir("/proc/optoenc-runs", None, "x")
     assert err.value.key == "output.root"
@@ -65,18 +81,37 @@ def test_cli_run_files_and_pictures_are_readable_by_others(tmp_path, tiny):
         assert _mode(p) == 0o644, p
 
 
-@pytest.mark.parametrize("where", ["file", "proc"])
-def test_cli_output_root_file_or_read_only(tmp_path, tiny, where):
-    root = tmp_path / "file" if where == "file" else "/proc/optoenc-runs"
-    if where == "file":
-        root.write_text("")
-    line = one_line_error((run if where == "file" else main)("fit", *tiny, f"--output.root={root}"))
-    assert "output.root" in line
+def _refuses_even_root(folder: str) -> bool:
+    """True if the kernel refuses to create a folder in ``folder`` whoever asks (sysfs does: EPERM, even to root)."""
+    probe = os.path.join(folder, "optoenc-probe")
+    try:
+        os.mkdir(probe)
+    except OSError:
+        return True
+    os.rmdir(probe)
+    return False
+
+
+@pytest.mark.parametrize("where", ["file", "below_file", "read_only"])
+def test_cli_output_root_file_or_read_only(tmp_path, where):
+    """A file in the way, or a read-only place: one line naming output.root, and nothing created.
+
+    chmod cannot make a folder unwritable to root (these tests may run as root), so the
+    read-only place is one the kernel refuses to everybody: a folder of sysfs.
+    """
+    (tmp_path / "file").write_text("")
+    root = {"file": tmp_path / "file", "below_file": tmp_path / "file" / "runs", "read_only": "/sys/optoenc-runs"}[where]
+    if where == "read_only" and not (os.path.isdir("/sys") and _refuses_even_root("/sys")):
+        pytest.skip("no sysfs here: no folder that refuses writes even to root")
+    line = one_line_error(run("fit", "--encoder", "diffuser", f"--output.root={root}"))
+    assert f"output.root = '{root}'" in line
+    assert ("is a file" in line) if where != "read_only" else ("cannot create a run directory" in line)
+    assert (tmp_path / "file").read_text() == "" and not os.path.exists("/sys/optoenc-runs")  # nothing created
 
 
 def test_cli_out_naming_an_existing_folder(tmp_path):
     line = one_line_error(run("psf", "--encoder", "diffuser", "--out", tmp_path))
     assert "--out" in line and "folder" in line
     (tmp_path / "f").write_text("")
-    line = one_line_error(main("simulate", "--encoder", "diffuser", "--out", tmp_path / "f"))
+    line = one_line_error(run("simulate", "--encoder", "diffuser", "--out", tmp_path / "f"))
     assert "--out" in line

@@ -37,12 +37,32 @@ def test_signal_mid_run(tmp_path, sig, code):
     # Ctrl-C used to exit 1 silently, SIGTERM 0 silently; the message said the literal RUN_DIR
     assert rc == code, err[-3000:]
     assert "Traceback" not in err and "RUN_DIR" not in err
-    assert f"interrupted by {sig.name}" in err and f"optoenc fit --resume {run_dir}" in err
+    lines = err.strip().splitlines()
+    assert lines[:-1] == [f"run directory: {run_dir}"], err  # the message is one line, after the run directory
+    assert lines[-1].startswith(f"optoenc: interrupted by {sig.name} during epoch ") and f"in {run_dir};" in lines[-1]
+    assert lines[-1].endswith(f"resume with: optoenc fit --resume {run_dir}")
     marker = json.loads((run_dir / "interrupted.json").read_text())
     assert marker["signal"] == sig.name and marker["resume"] == f"optoenc fit --resume {run_dir}"
+    assert marker["epoch"] >= 2 and not (run_dir / "summary.json").exists()  # mid-training: no summary of a finished run
     if sig == signal.SIGINT:  # the printed command works and completes the run (marker gone)
         done = len(read_metrics(run_dir / "metrics.csv"))
         proc = run("fit", "--resume", run_dir, f"--trainer.max_epochs={done + 1}")
         assert proc.returncode == 0, proc.stderr[-2000:]
         assert not (run_dir / "interrupted.json").exists() and (run_dir / "summary.json").exists()
         assert [int(r["epoch"]) for r in read_metrics(run_dir / "metrics.csv")] == list(range(done + 1))
+
+
+def test_run_markers_say_the_latest_state(tmp_path):
+    """A run directory is marked failed or interrupted by its latest stop, and by neither once it completes."""
+    from optoenc.errors import TrainingDiverged
+    from optoenc.resume import clear_interrupted, mark_failed, mark_interrupted
+
+    mark_failed(tmp_path, TrainingDiverged("training loss became nan\nsecond line"), epoch=3)
+    failed = json.loads((tmp_path / "failed.json").read_text())
+    assert (failed["state"], failed["message"], failed["epoch"], failed["exit_code"]) == ("failed", "training loss became nan", 3, 1)
+    mark_interrupted(tmp_path, "SIGTERM", 4, "optoenc fit --resume x")  # resumed, then stopped: interrupted, no longer failed
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["interrupted.json"]
+    mark_failed(tmp_path, RuntimeError("boom"), epoch=5)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["failed.json"]
+    clear_interrupted(tmp_path)  # the run completed
+    assert list(tmp_path.iterdir()) == []

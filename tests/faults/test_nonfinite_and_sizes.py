@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import pytest
 import torch
 
@@ -96,6 +98,15 @@ def test_cli_inf_is_refused_before_a_run_directory_exists(tmp_path, tiny):
 
 def test_cli_non_finite_loss_aborts_with_exit_1_naming_the_setting(tmp_path, tiny):
     # finite but absurd read noise overflows float32: every loss is NaN; the run used to finish with exit 0
-    proc = run("fit", *tiny, "--trainer.max_epochs=3", "--sensor.noise=poisson", "--sensor.read_noise=1e39")
+    proc = run("fit", *tiny, "--output.name=r", "--trainer.max_epochs=3", "--trainer.limit_train_batches=2",
+               "--sensor.noise=poisson", "--sensor.read_noise=1e39")
     line = one_line_error(proc, code=1)
     assert "nan" in line and "sensor.read_noise" in line
+    # the run directory says it failed, and why (it used to hold no trace of the failure); no summary of a finished run
+    run_dir = tmp_path / "runs" / "r"
+    marker = run_dir / "failed.json"
+    assert f"marked failed in {marker}" in line
+    failed = json.loads(marker.read_text())
+    assert failed["state"] == "failed" and failed["error"] == "TrainingDiverged" and failed["exit_code"] == 1
+    assert failed["epoch"] == 0 and "sensor.read_noise" in failed["message"]
+    assert not (run_dir / "summary.json").exists() and not (run_dir / "interrupted.json").exists()

@@ -17,7 +17,7 @@ from optoenc.datasets.idx import read_idx, write_idx
 from optoenc.datasets.mnist import FILES, _bundled_root
 from optoenc.errors import ConfigError
 
-from faultkit import main, one_line_error, run
+from faultkit import one_line_error, run
 
 
 def test_last_training_batch_of_one_with_batchnorm(tmp_path, tiny):
@@ -46,13 +46,13 @@ def test_verify_preset_refused_when_composed():
 @pytest.mark.parametrize("override,key", [("--dataset.val_size=0", "dataset.val_size"), ("--dataset.train_size=1", "dataset.train_size")])
 def test_split_sizes_refused_before_training(tmp_path, tiny, override, key):
     # val_size = 0 used to give NaN validation, then no best.ckpt for `optoenc test`
-    line = one_line_error(main("fit", *tiny, override))
+    line = one_line_error(run("fit", *tiny, override))
     assert key in line
     assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())
 
 
 def test_cli_verify_preset_refused_before_training(tmp_path, tiny):
-    line = one_line_error(main("fit", *tiny, "--trainer.verify_preset=bogus"))
+    line = one_line_error(run("fit", *tiny, "--trainer.verify_preset=bogus"))
     assert "trainer.verify_preset" in line and "bogus" in line
     assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())
 
@@ -73,7 +73,7 @@ def test_labels_outside_the_class_count_are_a_data_error(tmp_path, tiny):
     assert (read_idx(root / FILES["train_labels"]) == labels).all()
     sums = "".join(f"{hashlib.sha256((root / n).read_bytes()).hexdigest()}  {n}\n" for n in FILES.values())
     (root / "SHA256SUMS").write_text(sums)
-    line = one_line_error(main("fit", *tiny, f"--dataset.root={root}"))
+    line = one_line_error(run("fit", *tiny, f"--dataset.root={root}"))
     assert "label 200" in line and "10 classes" in line
 
 

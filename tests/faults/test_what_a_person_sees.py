@@ -122,3 +122,13 @@ def test_batch_limits_for_smoke_tests(tmp_path, quick):
     fit(compose(overrides=over, names={"encoder": "diffuser", "decoder": "logistic"}), tmp_path / "r", callbacks=[counter])
     # 600 training examples = 6 batches of 100, limited to 1 per epoch; 200 validation = 4 batches of 50, half
     assert (counter.train, counter.val) == (2 * 1, 2 * 2)
+
+
+def test_readme_creates_a_virtual_environment_before_pip():
+    """As root, a bare `pip install` writes into the system Python: the README creates and activates a venv first."""
+    from pathlib import Path
+
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    first = readme.find("pip install")
+    assert first > 0  # the README does say how to install
+    assert 0 <= readme.find("-m venv") < readme.find("/bin/activate") < first
