@@ -54,7 +54,9 @@ BASELINE_ATTACK = {"admm_search": "admm", "learned_one": "learned"}
 
 def _key(r: dict, baseline: bool = False) -> tuple:
     attack = r["attack"] if baseline else BASELINE_ATTACK.get(r["attack"], r["attack"])
-    return (r["encoder"], r["embedding"], attack, str(r.get("n_pairs", "")))
+    pairs = r.get("n_pairs", "")
+    # n_pairs: an int when measured, a float when read back from a table, empty for other attacks
+    return (r["encoder"], r["embedding"], attack, "" if pairs in ("", None) else int(float(pairs)))
 
 
 def defence_rows(cells: Sequence[tuple[str | Path, Sequence[dict]]]) -> list[dict[str, Any]]:

@@ -31,7 +31,10 @@ def test_defence_rows_against_the_baseline(tmp_path):
     one = _rows(7.0, 0.25, 0.0, 0.94)[0] | {"attack": "learned_one"}
     cells[0][1].append(one)
     cells[1][1].append(_rows(14.0, 0.5, 0.5, 0.95)[0] | {"attack": "learned"})
+    cells[0][1].append(_rows(7.0, 0.25, 0.5, 0.94)[0] | {"attack": "plaintext", "n_pairs": 1000})
+    cells[1][1].append(_rows(28.0, 1.0, 1.0, 0.95)[0] | {"attack": "plaintext", "n_pairs": 1000.0})  # read back
     out = defence_rows(cells)
+    assert [r["psnr_drop"] for r in out if r["attack"] == "plaintext" and r["patterns"] == 4] == [pytest.approx(0.75)]
     # learned_one (K = 4 only) is compared with the baseline's learned attacker
     assert [r["psnr_drop"] for r in out if r["attack"] == "learned_one"] == [pytest.approx(0.5)]
     rows = {(r["patterns"], r["adversary_weight"]): r for r in out if r["attack"] == "admm"}
