@@ -3,7 +3,7 @@
 A sweep folder holds runs of one encoder that differ in ``encoder.patterns``
 (K, the variable-pattern defence) and ``privacy.adversary_weight`` (lambda,
 privacy-aware training). For every embedding size the baseline is the run
-with K = 1 and lambda = 0; every row gives the attack's metrics and their
+with K = 1 and lambda = 0 and the same seed; every row gives the attack's metrics and their
 change against the same attack on the baseline:
 
 * ``psnr_drop``, ``ssim_drop``: relative drops ``1 - value / baseline`` (the
@@ -30,14 +30,14 @@ from ..training.rundir import RUN_FILES, atomic_write_text
 __all__ = ["COLUMNS", "cell_settings", "defence_rows", "write_defence", "markdown"]
 
 COLUMNS = (
-    "encoder", "embedding", "patterns", "adversary_weight", "epochs", "test_acc", "attack", "n_pairs", "psnr", "ssim",
+    "encoder", "embedding", "patterns", "adversary_weight", "seed", "epochs", "test_acc", "attack", "n_pairs", "psnr", "ssim",
     "readability", "reid_top1", "reid_top1_se", "psnr_drop", "ssim_drop", "reid_change", "readability_change",
     "acc_change", "count", "run",
 )
 
 
 def cell_settings(run_dir: str | Path) -> dict[str, Any]:
-    """``patterns`` (K), ``adversary_weight`` (lambda) and ``epochs`` of a run directory (defaults when absent)."""
+    """``patterns`` (K), ``adversary_weight`` (lambda), ``seed`` and ``epochs`` of a run directory (defaults when absent)."""
     from omegaconf import OmegaConf
 
     tree = OmegaConf.to_container(OmegaConf.load(Path(run_dir) / RUN_FILES["config"]))
@@ -45,6 +45,7 @@ def cell_settings(run_dir: str | Path) -> dict[str, Any]:
         "patterns": int((tree.get("encoder") or {}).get("patterns", 1)),
         "adversary_weight": float((tree.get("privacy") or {}).get("adversary_weight", 0.0)),
         "epochs": int((tree.get("trainer") or {}).get("max_epochs", 0)),
+        "seed": int(tree.get("seed", 0)),
     }
 
 
@@ -56,7 +57,7 @@ def _key(r: dict, baseline: bool = False) -> tuple:
     attack = r["attack"] if baseline else BASELINE_ATTACK.get(r["attack"], r["attack"])
     pairs = r.get("n_pairs", "")
     # n_pairs: an int when measured, a float when read back from a table, empty for other attacks
-    return (r["encoder"], r["embedding"], attack, "" if pairs in ("", None) else int(float(pairs)))
+    return (r["encoder"], r["embedding"], r.get("seed", 0), attack, "" if pairs in ("", None) else int(float(pairs)))
 
 
 def defence_rows(cells: Sequence[tuple[str | Path, Sequence[dict]]]) -> list[dict[str, Any]]:
@@ -71,7 +72,7 @@ def defence_rows(cells: Sequence[tuple[str | Path, Sequence[dict]]]) -> list[dic
         tagged += [{**r, **s} for r in rows]
     base = {_key(r, baseline=True): r for r in tagged if r["patterns"] == 1 and r["adversary_weight"] == 0}
     out = []
-    for r in sorted(tagged, key=lambda r: (r["embedding"], r["patterns"], r["adversary_weight"])):
+    for r in sorted(tagged, key=lambda r: (r["embedding"], r["patterns"], r["adversary_weight"], r["seed"])):
         row = dict(r)
         b = base.get(_key(r))
         if b is not None:
@@ -108,15 +109,15 @@ def _pct(v: Any, signed: bool = False) -> str:
 
 def markdown(rows: Sequence[dict]) -> str:
     """Markdown table: settings, accuracy, each attack's quality and its change against the baseline."""
-    lines = ["| embedding | K | lambda | test acc [%] | attack | PSNR [dB] | SSIM | re-id top-1 [%] | readability [%] "
+    lines = ["| embedding | K | lambda | seed | test acc [%] | attack | PSNR [dB] | SSIM | re-id top-1 [%] | readability [%] "
              "| PSNR drop [%] | SSIM drop [%] | re-id change [pts] | acc change [pts] |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if r["attack"] == "mean_scene":
             continue
         att = r["attack"] + (f" (N={int(float(r['n_pairs']))})" if r.get("n_pairs") not in ("", None) else "")
         lines.append(
-            f"| {r['embedding']} | {r['patterns']} | {r['adversary_weight']:g} | {_pct(r['test_acc'])} | {att} "
+            f"| {r['embedding']} | {r['patterns']} | {r['adversary_weight']:g} | {r.get('seed', 0)} | {_pct(r['test_acc'])} | {att} "
             f"| {float(r['psnr']):.1f} | {float(r['ssim']):.2f} | {_pct(r['reid_top1'])} +- {_pct(r['reid_top1_se'])} "
             f"| {_pct(r['readability'])} | {_pct(r.get('psnr_drop'), True)} | {_pct(r.get('ssim_drop'), True)} "
             f"| {_pct(r.get('reid_change'), True)} | {_pct(r.get('acc_change'), True)} |"
