@@ -42,8 +42,8 @@ def test_yaml_list_top_level_and_unresolved_interpolation():
     "text,needles",
     [
         ("- a\n- b\n", ["--config", "mapping"]),
-        ("seed: hello\n", ["seed", "hello"]),
-        ("encoder:\n  d2: ${nope}\n", ["encoder.d2", "${nope}"]),
+        pytest.param("seed: hello\n", ["seed", "hello"], marks=pytest.mark.slow),  # in-process: test_errors_name_key_and_value
+        pytest.param("encoder:\n  d2: ${nope}\n", ["encoder.d2", "${nope}"], marks=pytest.mark.slow),
     ],
 )
 def test_cli_config_files(tmp_path, text, needles):
@@ -54,6 +54,20 @@ def test_cli_config_files(tmp_path, text, needles):
         assert n in line
 
 
+def test_accelerator_without_gpu_is_a_config_error():
+    import torch
+
+    from optoenc.training.run import _lightning_trainer
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has a GPU")
+    run_cfg = compose(names={"encoder": "diffuser"}, overrides=["trainer.accelerator=gpu"])
+    with pytest.raises(ConfigError) as err:  # Lightning's refusal used to reach the user as a traceback
+        _lightning_trainer(run_cfg, accelerator="gpu", devices="auto", logger=False)
+    assert err.value.key == "trainer.accelerator" and err.value.value == "gpu"
+
+
+@pytest.mark.slow  # Lightning's start-up: the refusal itself is checked in-process above
 def test_cli_accelerator_without_gpu_is_a_config_error(tmp_path, tiny):
     import torch
 

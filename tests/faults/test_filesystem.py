@@ -92,7 +92,7 @@ def _refuses_even_root(folder: str) -> bool:
     return False
 
 
-@pytest.mark.parametrize("where", ["file", "below_file", "read_only"])
+@pytest.mark.parametrize("where", ["file", pytest.param("below_file", marks=pytest.mark.slow), "read_only"])
 def test_cli_output_root_file_or_read_only(tmp_path, where):
     """A file in the way, or a read-only place: one line naming output.root, and nothing created.
 

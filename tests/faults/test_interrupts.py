@@ -43,7 +43,8 @@ def test_signal_mid_run(tmp_path, sig, code):
     assert lines[-1].endswith(f"resume with: optoenc fit --resume {run_dir}")
     marker = json.loads((run_dir / "interrupted.json").read_text())
     assert marker["signal"] == sig.name and marker["resume"] == f"optoenc fit --resume {run_dir}"
-    assert marker["epoch"] >= 2 and not (run_dir / "summary.json").exists()  # mid-training: no summary of a finished run
+    # two epochs were in metrics.csv: the signal came in epoch 2 (its end hooks) or later; no summary of a finished run
+    assert marker["epoch"] >= 1 and not (run_dir / "summary.json").exists()
     if sig == signal.SIGINT:  # the printed command works and completes the run (marker gone)
         done = len(read_metrics(run_dir / "metrics.csv"))
         proc = run("fit", "--resume", run_dir, f"--trainer.max_epochs={done + 1}")

@@ -16,18 +16,19 @@ def _snapshot(run_dir):
     return {p.relative_to(run_dir): p.read_bytes() for p in sorted(run_dir.rglob("*")) if p.is_file()}
 
 
-_slow = pytest.mark.slow  # the same check, one more key each: the default suite runs two representatives
+_slow = pytest.mark.slow  # the same check through the command again: the default suite runs one representative
 
 
 @pytest.mark.parametrize(
     "change,keys",
     [
-        (["--decoder.embedding_norm=none"], ["decoder.embedding_norm"]),  # used to crash after config.yaml was rewritten
+        pytest.param(["--decoder.embedding_norm=none"], ["decoder.embedding_norm"], marks=_slow),  # crashed after rewriting config.yaml
         pytest.param(["--sensor.embedding=[12,16]"], ["sensor.embedding"], marks=_slow),
         pytest.param(["--encoder.d2=0.005"], ["encoder.d2"], marks=_slow),
         pytest.param(["--seed=7"], ["seed"], marks=_slow),
         pytest.param(["--trainer.lr=0.01"], ["trainer.lr"], marks=_slow),  # used to be written and ignored
-        (["--encoder.d2=0.005", "--seed=7", "--trainer.lr=0.01", "--trainer.max_epochs=2"], ["encoder.d2", "seed", "trainer.lr"]),
+        (["--encoder.d2=0.005", "--seed=7", "--trainer.lr=0.01", "--decoder.embedding_norm=none", "--trainer.max_epochs=2"],
+         ["encoder.d2", "seed", "trainer.lr", "decoder.embedding_norm"]),
     ],
 )
 def test_resume_with_changed_settings_is_refused_and_writes_nothing(copy_of_trained, change, keys):
@@ -76,21 +77,39 @@ def test_resume_with_safe_changes_continues(copy_of_trained):
     assert [r["epoch"] for r in read_metrics(copy_of_trained / "metrics.csv")] == ["0", "1"]
 
 
-@pytest.mark.parametrize("damage", ["delete", "truncate", pytest.param("garbage", marks=_slow)])
-def test_missing_or_corrupt_last_checkpoint_is_one_line_naming_the_file(copy_of_trained, damage):
-    ckpt = copy_of_trained / "checkpoints" / "last.ckpt"
+def _damage(ckpt, damage):
     if damage == "delete":
         ckpt.unlink()  # used to retrain silently from epoch 0
     elif damage == "truncate":
         ckpt.write_bytes(ckpt.read_bytes()[:3000])  # used to print PytorchStreamReader failed ...
     else:
         ckpt.write_bytes(b"not a checkpoint at all")
+
+
+@pytest.mark.parametrize("damage", ["delete", "truncate", "garbage"])
+def test_read_checkpoint_refuses_missing_or_corrupt_files(copy_of_trained, damage):
+    from optoenc.errors import DataError
+    from optoenc.resume import read_checkpoint
+
+    ckpt = copy_of_trained / "checkpoints" / "last.ckpt"
+    assert read_checkpoint(ckpt)["epoch"] == 0  # intact: read
+    _damage(ckpt, damage)
+    with pytest.raises(DataError) as err:
+        read_checkpoint(ckpt)
+    assert str(err.value).startswith(f"{ckpt}: ") and len(str(err.value).splitlines()) == 1
+
+
+@pytest.mark.parametrize("damage", [pytest.param("delete", marks=_slow), "truncate", pytest.param("garbage", marks=_slow)])
+def test_missing_or_corrupt_last_checkpoint_is_one_line_naming_the_file(copy_of_trained, damage):
+    ckpt = copy_of_trained / "checkpoints" / "last.ckpt"
+    _damage(ckpt, damage)
     before = _snapshot(copy_of_trained)
     line = one_line_error(run("fit", "--resume", copy_of_trained, "--trainer.max_epochs=2"))
     assert str(ckpt) in line
     assert _snapshot(copy_of_trained) == before
 
 
+@pytest.mark.slow  # the same reader as test_read_checkpoint_refuses_missing_or_corrupt_files, through `optoenc test`
 def test_test_with_a_corrupt_best_checkpoint_names_it(copy_of_trained):
     best = copy_of_trained / "checkpoints" / "best.ckpt"
     best.write_bytes(best.read_bytes()[:2000])
@@ -101,6 +120,10 @@ def test_test_with_a_corrupt_best_checkpoint_names_it(copy_of_trained):
 def test_test_with_a_different_decoder_setting_is_refused(trained):
     line = one_line_error(run("test", "--run", trained, "--decoder.embedding_norm=none"))
     assert "decoder.embedding_norm" in line
+
+
+@pytest.mark.slow
+def test_test_under_other_noise_is_allowed(trained):
     proc = run("test", "--run", trained, "--sensor.snr_db=30")  # evaluating under other noise is allowed
     assert proc.returncode == 0 and "test_acc" in proc.stdout and "Traceback" not in proc.stderr, proc.stderr[-2000:]
 

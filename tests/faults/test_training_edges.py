@@ -43,7 +43,10 @@ def test_verify_preset_refused_when_composed():
     assert err.value.key == "trainer.verify_preset"
 
 
-@pytest.mark.parametrize("override,key", [("--dataset.val_size=0", "dataset.val_size"), ("--dataset.train_size=1", "dataset.train_size")])
+@pytest.mark.parametrize("override,key", [
+    ("--dataset.val_size=0", "dataset.val_size"),
+    pytest.param("--dataset.train_size=1", "dataset.train_size", marks=pytest.mark.slow),
+])
 def test_split_sizes_refused_before_training(tmp_path, tiny, override, key):
     # val_size = 0 used to give NaN validation, then no best.ckpt for `optoenc test`
     line = one_line_error(run("fit", *tiny, override))
@@ -51,6 +54,7 @@ def test_split_sizes_refused_before_training(tmp_path, tiny, override, key):
     assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())
 
 
+@pytest.mark.slow  # in-process: test_verify_preset_refused_when_composed
 def test_cli_verify_preset_refused_before_training(tmp_path, tiny):
     line = one_line_error(run("fit", *tiny, "--trainer.verify_preset=bogus"))
     assert "trainer.verify_preset" in line and "bogus" in line
@@ -75,6 +79,7 @@ def test_labels_outside_the_class_count_are_a_data_error(tmp_path, tiny):
     (root / "SHA256SUMS").write_text(sums)
     line = one_line_error(run("fit", *tiny, f"--dataset.root={root}"))
     assert "label 200" in line and "10 classes" in line
+    assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())  # a failed start leaves no stub
 
 
 def test_cache_entry_with_valid_checksum_and_wrong_keys_is_recomputed(tmp_path):
