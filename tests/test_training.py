@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 
 import lightning as L
+import time
+
 import pytest
 import yaml
 
@@ -70,6 +72,22 @@ def test_resume_continues_from_the_next_epoch_losing_and_repeating_none(tmp_path
     strip = lambda rows: [{k: v for k, v in r.items() if k != "time_s"} for r in rows]  # noqa: E731
     assert strip(rows_r) == strip(rows_w)  # per-batch derived seeds: identical continuation
     assert resumed["test_acc"] == whole["test_acc"]
+
+
+class _SlowFirstEpoch(L.Callback):
+    def on_train_epoch_end(self, trainer, pl_module):
+        if trainer.current_epoch == 0:
+            time.sleep(1.5)
+
+
+def test_wall_time_counts_every_segment_of_a_resumed_run(tmp_path, quick):
+    # The first segment sleeps 1.5 s in epoch 0 (before its checkpoint), then crashes: the resumed
+    # run's wall_time_s must include those 1.5 s on top of its own segment (which has no sleep).
+    run = compose(overrides=quick + ["trainer.max_epochs=2"], names={"encoder": "diffuser", "decoder": "logistic"})
+    with pytest.raises(RuntimeError, match="simulated crash"):
+        fit(run, tmp_path / "cut", callbacks=[_SlowFirstEpoch(), _Crash()])
+    resumed = fit(run, tmp_path / "cut", resume=True)
+    assert resumed["wall_time_s"] >= resumed["segment_wall_time_s"] + 1.5
 
 
 def test_resume_through_the_cli(tmp_path, quick_args, capsys):

@@ -15,7 +15,7 @@ from lightning.pytorch.callbacks import ModelCheckpoint
 
 from .rundir import atomic_write_text
 
-__all__ = ["EpochMetrics", "EpochTest", "METRIC_COLUMNS", "RunCheckpoint", "FiniteLoss", "EpochLines"]
+__all__ = ["EpochMetrics", "EpochTest", "METRIC_COLUMNS", "RunCheckpoint", "FiniteLoss", "EpochLines", "WallClock"]
 
 METRIC_COLUMNS = ("epoch", "train_loss", "train_acc", "val_loss", "val_acc", "test_acc", "time_s")
 
@@ -127,6 +127,30 @@ class RunCheckpoint(ModelCheckpoint):
             if "best_k_models" in state_dict:
                 state_dict["best_k_models"] = {move(p): v for p, v in state_dict["best_k_models"].items()}
         super().load_state_dict(state_dict)
+
+
+class WallClock(L.Callback):
+    """A run's wall time over all its segments: each checkpoint carries the time spent up to it.
+
+    A resumed run starts from the time its checkpoint recorded, so ``total()``
+    is the wall time of the uninterrupted path to the result (the work done
+    after the last checkpoint of an interrupted segment is redone, and
+    counted once).
+    """
+
+    def __init__(self, start: float | None = None):
+        self.start = time.time() if start is None else start
+        self.before = 0.0
+
+    def total(self) -> float:
+        """Seconds: this segment so far plus the segments before its checkpoint."""
+        return self.before + time.time() - self.start
+
+    def state_dict(self) -> dict:
+        return {"wall_time_s": self.total()}
+
+    def load_state_dict(self, state_dict: dict) -> None:
+        self.before = float(state_dict.get("wall_time_s", 0.0))
 
 
 class FiniteLoss(L.Callback):

@@ -22,6 +22,7 @@ from ..config import RunConfig, build_encoder
 from ..errors import ConfigError, DataError, Interrupted, OptoencError
 from ..fidelity.knobs import FidelityConfig
 from ..plugins import get_registry
+from ..privacy import adversary
 from ..settings import to_dict
 from . import pictures
 from . import cache
@@ -115,6 +116,7 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
         encoder_lr=run.trainer.encoder_lr,
         seed=run.seed,
         precomputed=precomputed,
+        adversary=adversary.from_config(run.privacy, encoder, splits.train[0].shape[1:]),
     )
     if decoder.norm_kind == "standardize":
         sample = data["train"][0][:5000]
@@ -233,7 +235,10 @@ def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> di
     parts = build(run, progress=run.trainer.progress)
     if restored is not None:
         _check_restore(parts.module, restored, ckpt)
-    trainer = _trainer(run, run_dir, extra_callbacks=callbacks, test_loader=parts.loaders["test"])
+    from .callbacks import WallClock
+
+    clock = WallClock(start)
+    trainer = _trainer(run, run_dir, extra_callbacks=(*callbacks, clock), test_loader=parts.loaders["test"])
     run_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_text(run_dir / RUN_FILES["config"], run.to_yaml())
     if not resume and parts.module.encoder.learnable:  # a fixed encoder's initial PSF is its final one
@@ -268,7 +273,8 @@ def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> di
         "test_acc": float(test[0]["test_acc"]) if test else float("nan"),
         "best_test_acc": _best_test(run_dir),
         "fidelity": parts.module.encoder.knobs.to_dict(),
-        "wall_time_s": round(time.time() - start, 2),
+        "wall_time_s": round(clock.total(), 2),  # every segment of a resumed run
+        "segment_wall_time_s": round(time.time() - start, 2),
         "encoder": to_dict(run.encoder),
         "scene": to_dict(run.scene),
         "sensor": to_dict(run.sensor),
