@@ -1,6 +1,6 @@
 """Preset goals of issue 8 against the converged truth, one encoder at a time (slow: full-sensor truth, fine fields).
 
-Run with ``python -m pytest -q -p no:cacheprovider -m slow tests/test_bench_presets_slow.py`` (~3-4 min, ~5.5 GB).
+Run with ``python -m pytest -q -p no:cacheprovider -m slow tests/test_bench_presets_slow.py`` (66 s and 5.5 GB peak at load ~5 on 2 cores).
 The whole table is ``optoenc bench`` (docs/benchmarks.md).
 """
 
