@@ -154,7 +154,7 @@ def checkpoint_path(run_dir: Path, which: str = "last") -> Path:
 
 
 def _trainer(run: RunConfig, run_dir: Path, logger: bool = True, extra_callbacks=(), test_loader=None):
-    from .callbacks import EpochLines, EpochMetrics, FiniteLoss, RunCheckpoint
+    from .callbacks import EpochLines, EpochMetrics, FiniteLoss, RunCheckpoint, WallClock
 
     callbacks = [
         RunCheckpoint(  # keeps its best score when the run directory is moved or copied
@@ -176,6 +176,8 @@ def _trainer(run: RunConfig, run_dir: Path, logger: bool = True, extra_callbacks
             callbacks.append(EpochTest(test_loader))
         callbacks.append(EpochMetrics(run_dir / RUN_FILES["metrics"]))
     callbacks.append(FiniteLoss(run))
+    if not any(isinstance(c, WallClock) for c in callbacks):  # its state is in every checkpoint: restore it anywhere
+        callbacks.append(WallClock())
     bar = run.trainer.progress and sys.stdout.isatty()
     if run.trainer.progress and not bar:  # a log file: one line per epoch, not a bar of carriage returns
         callbacks.append(EpochLines())
