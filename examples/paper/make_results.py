@@ -31,7 +31,7 @@ T3_COLUMNS = ("encoder", "embedding", "decoder", "transform", "augment_mode", "s
               "best_test_acc", "paper_acc", "diff_vs_paper")
 T2_COLUMNS = ("encoder", "decoder", "drop", "paper_drop")
 T4_COLUMNS = ("encoder", "embedding", "transform", "augment_mode", "drop", "paper_drop")
-TS_COLUMNS = ("encoder", "embedding", "paper_acc", "box_test_acc", "point_test_acc", "point_best_test_acc",
+TS_COLUMNS = ("encoder", "embedding", "decoder", "paper_acc", "box_test_acc", "point_test_acc", "point_best_test_acc",
               "point_minus_box")
 ENCODERS = ("lens", "coded_aperture", "diffuser", "fixed_slm", "learned_slm", "learned_phase_mask")
 EMBEDDINGS = ("24x32", "12x16", "6x8", "3x4")
@@ -101,12 +101,13 @@ def _table4(agg1, agg3) -> list[dict]:
 
 
 def _sampling(agg1, agg_point) -> list[dict]:
-    """The sensor-model check: each fixed-encoder FCNN cell with physical pixels (Table 1) and point samples."""
-    box = {(r["encoder"], r["embedding"]): r for r in agg1 if r["decoder"] == "fcnn"}
+    """The sensor-model check: each cell with physical pixels (Table 1) beside the same cell with point samples."""
+    box = {(r["encoder"], r["embedding"], r["decoder"]): r for r in agg1}
     out = []
     for r in agg_point:
-        b = box.get((r["encoder"], r["embedding"]), {})
-        out.append({"encoder": r["encoder"], "embedding": r["embedding"], "paper_acc": r["paper_acc"],
+        b = box.get((r["encoder"], r["embedding"], r["decoder"]), {})
+        out.append({"encoder": r["encoder"], "embedding": r["embedding"], "decoder": r["decoder"],
+                    "paper_acc": r["paper_acc"],
                     "box_test_acc": b.get("test_acc"), "point_test_acc": r["test_acc"],
                     "point_best_test_acc": r["best_test_acc"],
                     "point_minus_box": None if b.get("test_acc") is None or r["test_acc"] is None
