@@ -37,6 +37,19 @@ def test_correlation_tensor_matches_its_definition(n_grid, n_out, n_psf, sub, he
     torch.testing.assert_close(got, brute_correlation(box, place, n_psf, sub), rtol=0, atol=1e-12 * float(box.max()))
 
 
+@pytest.mark.parametrize("sampling", ["box", "point"])
+def test_correlation_tensor_holds_exact_zeros_not_rounding_noise(sampling):
+    # The geometry of the 24x32 learned-SLM augmentation canvas along one axis (288-pixel PSF grid, a
+    # 109-pixel canvas): the FFT left ~1e-35 where the answer is 0, whose float32 products with a PSF are
+    # subnormal (10x slower matrix products on x86). Every entry is now 0 or a real overlap: the
+    # smallest possible nonzero overlap here is far above 1e-12 of the largest (slivers of 1/109 pixel).
+    place = im.placement_matrices((109, 146), (288, 384), 286.0)[0]
+    got = im.correlation_tensor(im.sampling_matrix(288, 24, sampling), place, 288)
+    nonzero = got[got != 0].abs()
+    assert nonzero.numel() > 0 and float(nonzero.min()) > 1e-12 * float(got.abs().max())
+    assert not bool((got.to(torch.float32) * 1e-5).abs().lt(torch.finfo(torch.float32).tiny).logical_and(got != 0).any())
+
+
 @pytest.mark.filterwarnings("ignore:optics sampling")  # a 48 x 64 grid aliases the source; the same in both
 def test_large_fields_propagate_one_wavelength_at_a_time_with_the_same_psf(monkeypatch):
     from optoenc.bench import pipeline
