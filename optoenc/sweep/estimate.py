@@ -27,7 +27,8 @@ _WARM, _TIMED = 2, 5
 def kind_of(run) -> tuple:
     """Cells of one kind cost the same per epoch."""
     return (run.names["encoder"], run.names["decoder"], tuple(run.sensor.embedding), tuple(run.augment),
-            run.trainer.batch_size, run.trainer.test_every_epoch, str(run.fidelity))
+            run.trainer.augment_draw, run.trainer.batch_size, run.trainer.test_every_epoch, str(run.fidelity),
+            run.sensor.sampling)
 
 
 def _sizes(run, cache: dict) -> tuple[int, int, int]:
@@ -41,16 +42,24 @@ def _sizes(run, cache: dict) -> tuple[int, int, int]:
 
 
 def _measure(run, scene_shape) -> dict[str, float]:
-    """Seconds per training step and per encoded example, timed on random data of the cell's shapes."""
+    """Seconds per training step and per encoded example, timed on random data of the cell's shapes.
+
+    The step is the one training takes (:func:`optoenc.training.run.build`'s rules): precomputed
+    embeddings for a fixed encoder, else scenes through the augmentations' canvas and the encoder.
+    """
+    from ..augment import Compose, to_canvas
     from ..config import build_encoder
-    from ..training.module import EncoderClassifier
     from ..plugins import get_registry
+    from ..training.module import EncoderClassifier
+    from ..training.run import canvas_for, precomputes
 
     enc = build_encoder(run)
     dec = get_registry("decoder").get(run.names["decoder"])(
         run.decoder, in_shape=enc.output_shape, num_classes=10, learnable_encoder=enc.learnable)
-    pre = run.trainer.precompute and not enc.learnable and not run.augment
-    module = EncoderClassifier(enc, dec, lr=run.trainer.lr, precomputed=pre)
+    augs = [get_registry("augmentation").get(a)(cfg) for a, cfg in run.augment.items()]
+    canvas = canvas_for(run, enc, scene_shape[-2:]) if augs else None
+    pre = precomputes(run, enc)
+    module = EncoderClassifier(enc, dec, [] if pre else augs, canvas=canvas, lr=run.trainer.lr, precomputed=pre)
     opt = module.configure_optimizers()
     bs = run.trainer.batch_size
     x = torch.rand(bs, *enc.output_shape) if pre else torch.rand(bs, *scene_shape)
@@ -67,11 +76,18 @@ def _measure(run, scene_shape) -> dict[str, float]:
     per_example = 0.0
     if pre:
         with torch.no_grad():
-            imgs = torch.rand(1000, *scene_shape)
-            enc.measure(imgs[:10])
+            imgs = torch.rand(200, *scene_shape)
+
+            def encode(batch):
+                if not augs:
+                    return enc.measure(batch)
+                c = Compose(augs)(to_canvas(batch, canvas), canvas, enc.scene_config.object_height)
+                return enc.measure(c, height=canvas.height)
+
+            encode(imgs[:10])
             t0 = time.perf_counter()
-            enc.measure(imgs)
-            per_example = (time.perf_counter() - t0) / 1000
+            encode(imgs)
+            per_example = (time.perf_counter() - t0) / len(imgs)
     return {"step_s": step, "encode_s_per_example": per_example, "precomputed": pre}
 
 

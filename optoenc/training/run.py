@@ -31,7 +31,7 @@ from .module import EncoderClassifier
 from .resume import clear_interrupted, interrupted_note, mark_failed, raise_on_signals, read_checkpoint
 from .rundir import RUN_FILES, atomic_write_text, write_json
 
-__all__ = ["Parts", "build", "fit", "evaluate", "checkpoint_path", "load_encoder", "verify"]
+__all__ = ["Parts", "build", "precomputes", "canvas_for", "fit", "evaluate", "checkpoint_path", "load_encoder", "verify"]
 
 log = logging.getLogger(__name__)
 
@@ -46,7 +46,14 @@ class Parts:
     precomputed: bool
 
 
-def _canvas(run: RunConfig, encoder, scene_shape):
+def precomputes(run: RunConfig, encoder) -> bool:
+    """Whether a run trains on embeddings computed once (a fixed encoder, no per-epoch transforms)."""
+    return bool(run.trainer.precompute and not encoder.learnable
+                and (not run.augment or run.trainer.augment_draw == "once"))
+
+
+def canvas_for(run: RunConfig, encoder, scene_shape):
+    """The augmentation canvas of ``run``: its camera's field of view in the object plane."""
     from ..augment import canvas_geometry
 
     m = encoder.magnification
@@ -73,10 +80,10 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
         run.decoder, in_shape=encoder.output_shape, num_classes=splits.num_classes, learnable_encoder=encoder.learnable
     )
     once = bool(augs) and run.trainer.augment_draw == "once"
-    precomputed = run.trainer.precompute and not encoder.learnable and (not augs or once)
+    precomputed = precomputes(run, encoder)
     bs, ebs = run.trainer.batch_size, run.trainer.eval_batch_size
     data = {"train": splits.train, "val": splits.val, "test": splits.test}
-    canvas = _canvas(run, encoder, splits.train[0].shape[-2:]) if augs else None
+    canvas = canvas_for(run, encoder, splits.train[0].shape[-2:]) if augs else None
     if once:
         from . import augment_once
 
