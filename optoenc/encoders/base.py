@@ -70,7 +70,9 @@ def _as_intensity(scene: Any) -> torch.Tensor:
         return scene.to(torch.float32)
     if not scene.is_floating_point():
         return scene.to(torch.float32) / float(torch.iinfo(scene.dtype).max)
-    if not bool(torch.isfinite(scene.detach()).all()):
+    # A NaN or infinity makes the sum non-finite (one cheap pass over a large canvas); only then is every
+    # pixel looked at (finite values whose sum overflows are fine).
+    if not bool(torch.isfinite(scene.detach().sum())) and not bool(torch.isfinite(scene.detach()).all()):
         bad = int((~torch.isfinite(scene.detach())).sum())
         raise DataError(f"scene: {bad} pixel(s) are NaN or infinite; intensities must be finite")
     return scene

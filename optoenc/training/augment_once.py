@@ -7,8 +7,14 @@ transformed dataset per transformation). The draws are the ``(N, n_random)``
 uniforms of :class:`optoenc.augment.Compose`, stored beside the labels. A
 fixed encoder then sees a fixed dataset: its embeddings are computed once,
 in chunks (the canvases of a whole dataset would not fit in memory), and
-cached like any other. ``trainer.augment_draw=epoch`` (the default) redraws
-every transform every epoch instead.
+cached like any other. A learned encoder sees a fixed set of transformed
+scenes: they are computed once too (:func:`store_transformed`), each kept
+as the window of the canvas that holds its object (the canvas spans the
+whole field of view, ~20x the digit; outside the window it is exactly zero),
+and pasted back on a blank canvas per batch (:func:`paste`): the same
+scenes, without resampling the whole canvas at every step.
+``trainer.augment_draw=epoch`` (the default) redraws every transform every
+epoch instead.
 """
 
 from __future__ import annotations
@@ -21,7 +27,7 @@ from ..augment import Compose, to_canvas
 from ..errors import ConfigError
 from . import cache
 
-__all__ = ["draws", "encode_transformed", "DRAW_MODES"]
+__all__ = ["draws", "encode_transformed", "store_transformed", "paste", "DRAW_MODES"]
 
 #: ``trainer.augment_draw`` values.
 DRAW_MODES = ("epoch", "once")
@@ -58,6 +64,71 @@ def encode_transformed(encoder, augs, canvas, images: torch.Tensor, u: torch.Ten
     finally:
         encoder.train(was)
     return torch.cat(out)
+
+
+@torch.no_grad()
+def store_transformed(augs, canvas, images: torch.Tensor, u: torch.Tensor, batch_size: int,
+                      object_height: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """The transformed canvases of ``images`` as ``(windows (N, C, h, w), offsets (N, 2))``.
+
+    Lossless: every nonzero canvas pixel of example ``n`` lies in its window, whose top-left corner is
+    ``offsets[n]`` (rows, columns); one window size (the largest object's) for all, so batches stack.
+    """
+    comp = Compose(list(augs))
+    rows, cols = canvas.shape
+    parts, boxes = [], []
+    for i in range(0, len(images), batch_size):
+        c = comp(to_canvas(images[i : i + batch_size].to(torch.float32), canvas), canvas, object_height,
+                 u[i : i + batch_size])
+        on = c != 0
+        r_any, c_any = on.any(dim=(1, 3)), on.any(dim=(1, 2))  # (B, rows), (B, cols)
+        r0, c0 = _first(r_any), _first(c_any)
+        r1, c1 = rows - _first(r_any.flip(1)), cols - _first(c_any.flip(1))  # one past the last
+        blank = ~r_any.any(1)  # nothing to keep: a one-pixel window
+        r1, c1 = torch.where(blank, r0 + 1, r1), torch.where(blank, c0 + 1, c1)
+        h, w = int((r1 - r0).clamp_min(1).max()), int((c1 - c0).clamp_min(1).max())
+        parts.append(_crop(c, r0, c0, h, w))
+        boxes.append(torch.stack([r0, c0, r1, c1], 1))
+    box = torch.cat(boxes)
+    h = max(p.shape[-2] for p in parts)
+    w = max(p.shape[-1] for p in parts)
+    offsets = torch.stack([box[:, 0].clamp(max=rows - h), box[:, 1].clamp(max=cols - w)], 1)
+    out = torch.empty(len(images), parts[0].shape[1], h, w, dtype=parts[0].dtype)
+    n = 0
+    for part in parts:  # re-window each chunk at the common size (from its pasted canvas: exact copies)
+        k = len(part)
+        pasted = paste(part, torch.stack([box[n : n + k, 0].clamp(max=rows - part.shape[-2]),
+                                          box[n : n + k, 1].clamp(max=cols - part.shape[-1])], 1), canvas.shape)
+        out[n : n + k] = _crop(pasted, offsets[n : n + k, 0], offsets[n : n + k, 1], h, w)
+        n += k
+    return out, offsets
+
+
+def paste(windows: torch.Tensor, offsets: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
+    """Canvases ``(B, C, rows, cols)``, zero but for each example's window at its offset."""
+    B, C, h, w = windows.shape
+    rows, cols = shape
+    offsets = offsets.to(windows.device, torch.long)
+    r = offsets[:, 0, None] + torch.arange(h, device=windows.device)
+    c = offsets[:, 1, None] + torch.arange(w, device=windows.device)
+    idx = (r[:, :, None] * cols + c[:, None, :]).reshape(B, 1, h * w).expand(B, C, h * w)
+    out = torch.zeros(B, C, rows * cols, dtype=windows.dtype, device=windows.device)
+    return out.scatter_(2, idx, windows.reshape(B, C, h * w)).reshape(B, C, rows, cols)
+
+
+def _first(flags: torch.Tensor) -> torch.Tensor:
+    """Index of the first True of each row of ``(B, n)`` flags (0 where none)."""
+    return flags.to(torch.int8).argmax(1)
+
+
+def _crop(c: torch.Tensor, r0: torch.Tensor, c0: torch.Tensor, h: int, w: int) -> torch.Tensor:
+    """``(B, C, h, w)`` windows of canvases ``c`` at per-example corners (clamped inside the canvas)."""
+    B, C, rows, cols = c.shape
+    r0, c0 = r0.clamp(max=rows - h), c0.clamp(max=cols - w)
+    r = r0[:, None] + torch.arange(h)
+    k = c0[:, None] + torch.arange(w)
+    idx = (r[:, :, None] * cols + k[:, None, :]).reshape(B, 1, h * w).expand(B, C, h * w)
+    return c.reshape(B, C, rows * cols).gather(2, idx).reshape(B, C, h, w)
 
 
 def token(augs, canvas, u: dict[str, torch.Tensor]) -> str:

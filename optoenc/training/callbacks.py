@@ -180,7 +180,7 @@ class FiniteLoss(L.Callback):
         t = self.run.trainer
         with torch.no_grad():
             params_ok = all(bool(torch.isfinite(p).all()) for p in pl_module.parameters())
-            emb = pl_module.clean_embedding(batch[0], augment=False)
+            emb = pl_module.clean_embedding(batch[0], augment=False, draws=batch[2] if len(batch) > 2 else None)
             emb_ok = bool(torch.isfinite(emb).all())
             noisy_ok = bool(torch.isfinite(pl_module.encoder.add_sensor_noise(emb)).all())
         if not emb_ok:

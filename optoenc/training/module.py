@@ -35,6 +35,10 @@ class EncoderClassifier(L.LightningModule):
             encoders encode the dataset once); noise is still drawn per batch.
         augment_eval: apply the augmentations at validation and test too
             (the paper's robustness protocol: same distribution for both).
+        stored_canvases: batches hold the transformed canvases computed once
+            (``trainer.augment_draw=once``, a learned encoder): windows, with
+            their offsets in place of the draws
+            (:func:`optoenc.training.augment_once.store_transformed`).
     """
 
     def __init__(
@@ -49,6 +53,7 @@ class EncoderClassifier(L.LightningModule):
         precomputed: bool = False,
         augment_eval: bool = True,
         adversary: nn.Module | None = None,
+        stored_canvases: bool = False,
     ):
         super().__init__()
         self.encoder = encoder
@@ -58,6 +63,7 @@ class EncoderClassifier(L.LightningModule):
         self.lr, self.encoder_lr, self.seed = lr, encoder_lr or lr, int(seed)
         self.precomputed = precomputed
         self.augment_eval = augment_eval
+        self.stored_canvases = stored_canvases
         #: Privacy-aware training (:class:`optoenc.privacy.adversary.AdversaryObjective`), None: plain.
         self.adversary = adversary
         n = decoder.num_classes
@@ -74,6 +80,12 @@ class EncoderClassifier(L.LightningModule):
         """
         if self.precomputed:
             return x
+        if self.stored_canvases:  # the data is the transformed scenes themselves
+            from .augment_once import paste
+
+            if draws is None:
+                raise ValueError("stored canvases need their offsets (the batch's third tensor)")
+            return self.encoder.measure(paste(x, draws, self.canvas.shape), height=self.canvas.height)
         if len(self.augmentations) and augment:
             from ..augment import Compose, to_canvas
 

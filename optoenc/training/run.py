@@ -81,6 +81,9 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
     )
     once = bool(augs) and run.trainer.augment_draw == "once"
     precomputed = precomputes(run, encoder)
+    privacy = adversary.from_config(run.privacy, encoder, splits.train[0].shape[1:])
+    # A learned encoder drawn once keeps its transformed scenes (an adversary needs the plain ones).
+    stored = once and not precomputed and privacy is None
     bs, ebs = run.trainer.batch_size, run.trainer.eval_batch_size
     data = {"train": splits.train, "val": splits.val, "test": splits.test}
     canvas = canvas_for(run, encoder, splits.train[0].shape[-2:]) if augs else None
@@ -102,6 +105,10 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
                 expect={k: len(v[1]) for k, v in data.items()},
             )
             data = {k: (emb[k], y) for k, (_x, y) in data.items()}
+        elif stored:
+            data = {k: (*augment_once.store_transformed(augs, canvas, x, draws[k], ebs, run.scene.object_height), y)
+                    for k, (x, y) in data.items()}
+            data = {k: (w, y, off) for k, (w, off, y) in data.items()}  # batches: (windows, labels, offsets)
         else:
             data = {k: (x, y, draws[k]) for k, (x, y) in data.items()}
     elif precomputed:
@@ -123,12 +130,18 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
         encoder_lr=run.trainer.encoder_lr,
         seed=run.seed,
         precomputed=precomputed,
-        adversary=adversary.from_config(run.privacy, encoder, splits.train[0].shape[1:]),
+        adversary=privacy,
+        stored_canvases=stored,
     )
     if decoder.norm_kind == "standardize":
         sample = data["train"][0][:5000]
         with torch.no_grad():
-            emb = sample if precomputed else encode(encoder, sample, ebs)
+            if stored:
+                off = data["train"][2][:5000]
+                emb = torch.cat([module.clean_embedding(sample[i : i + ebs], True, off[i : i + ebs])
+                                 for i in range(0, len(sample), ebs)])
+            else:
+                emb = sample if precomputed else encode(encoder, sample, ebs)
         decoder.set_statistics(emb.mean().item(), emb.std().item())
     # One process: whole-batch indexing. Distributed: per-example loaders for Lightning's samplers, and
     # trainer.batch_size stays the examples per optimiser step: each of the W processes takes batch_size / W

@@ -29,8 +29,11 @@ def test_a_learned_cell_with_transforms_is_timed_through_its_canvas(quick, count
     run = compose(overrides=quick + SMALL + [f"trainer.augment_draw={draw}"],
                   names={"encoder": "learned_slm", "decoder": "logistic"}, augment=["shift"])
     m = est._measure(run, (1, 28, 28))
-    assert not m["precomputed"] and len(counted) == est._WARM + est._TIMED
-    assert set(counted) == {run.trainer.batch_size}
+    # epoch: every step transforms its batch; once: the batch is transformed once and its stored windows
+    # go through the encoder at every step, as in training (optoenc.training.augment_once.store_transformed).
+    steps = est._WARM + est._TIMED if draw == "epoch" else 1
+    assert not m["precomputed"] and counted == [run.trainer.batch_size] * steps
+    assert (m["encode_s_per_example"] > 0) == (draw == "once")
 
 
 def test_a_fixed_cell_drawn_once_is_precomputed_with_its_transforms(quick, counted):
