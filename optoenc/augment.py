@@ -30,7 +30,8 @@ from .errors import ConfigError
 from .settings import Documented, Settings, setting
 
 __all__ = [
-    "CanvasGeometry", "canvas_geometry", "to_canvas", "ObjectState", "Augmentation", "Compose",
+    "CanvasGeometry", "canvas_geometry", "to_canvas", "ObjectState", "Augmentation", "SeparableAugmentation",
+    "Compose",
     "Shift", "Rescale", "Rotate", "Perspective", "BUILTIN",
 ]
 
@@ -190,6 +191,23 @@ class Augmentation(Documented, nn.Module):
         return f"config={self.config}"
 
 
+class SeparableAugmentation(Augmentation):
+    """A transform that is an exact area resampling along each axis (shift, rescale).
+
+    Subclasses implement :meth:`resampling`; :class:`Compose` folds such
+    transforms into the placement of the scene (:meth:`Compose.place`).
+    """
+
+    def resampling(self, geometry: CanvasGeometry, state: ObjectState, u: torch.Tensor):
+        """``(((start_rows, scale_rows), (start_cols, scale_cols)), new_state)``: input cell ``p`` of an axis
+        maps to ``[start + scale p, start + scale (p + 1))`` (canvas pixels; ``(B,)`` tensors)."""
+        raise NotImplementedError
+
+    def apply(self, canvas, geometry, state, u):
+        ((t0, s0), (t1, s1)), new = self.resampling(geometry, state, u)
+        return _resample_axis(_resample_axis(canvas, -2, t0, s0), -1, t1, s1), new
+
+
 class Compose(nn.Module):
     """Several augmentations applied in order, tracking the object between them.
 
@@ -211,11 +229,46 @@ class Compose(nn.Module):
         self, canvas: torch.Tensor, geometry: CanvasGeometry, object_height: Any = None, u: torch.Tensor | None = None
     ) -> torch.Tensor:
         state = ObjectState.initial(geometry, canvas.shape[0], object_height, canvas.device)
-        u = self.draw(canvas.shape[0], canvas.device) if u is None else u.to(canvas.device, torch.float64)
+        u = self._draws(canvas.shape[0], canvas.device, u)
+        return self._apply(canvas, geometry, state, u, 0, 0)
+
+    def place(
+        self, scenes: torch.Tensor, geometry: CanvasGeometry, object_height: Any = None, u: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """``self(to_canvas(scenes, geometry), ...)``, computed cheaply: the same canvases.
+
+        Leading separable transforms (shift, rescale) are folded into the
+        placement: resampling the canvas ``P x Q^T`` along its rows is
+        ``(R P) x Q^T`` (linearity), and ``R P`` resamples only the
+        ``rows x h`` placement matrix, not every canvas of the batch.
+        """
+        B = scenes.shape[0]
+        state = ObjectState.initial(geometry, B, object_height, scenes.device)
+        u = self._draws(B, scenes.device, u)
+        top, left, rows, cols = geometry.object_box()
+        h, w = scenes.shape[-2:]
+        to_canvas(scenes[:0], geometry)  # the same checks
+        p = area_matrix(h, geometry.shape[0], top, rows).to(scenes.device).expand(B, 1, -1, -1)
+        q = area_matrix(w, geometry.shape[1], left, cols).to(scenes.device).expand(B, 1, -1, -1)
+        i = k = 0
+        for aug in self.augmentations:
+            if not isinstance(aug, SeparableAugmentation):
+                break
+            ((t0, s0), (t1, s1)), state = aug.resampling(geometry, state, u[:, k : k + aug.n_random])
+            p, q = _resample_axis(p, -2, t0, s0), _resample_axis(q, -2, t1, s1)
+            i, k = i + 1, k + aug.n_random
+        canvas = p[:, 0].to(scenes.dtype)[:, None] @ scenes @ q[:, 0].to(scenes.dtype).transpose(-1, -2)[:, None]
+        return self._apply(canvas, geometry, state, u, i, k)
+
+    def _draws(self, batch: int, device, u: torch.Tensor | None) -> torch.Tensor:
+        u = self.draw(batch, device) if u is None else u.to(device, torch.float64)
         if u.shape[-1] != self.n_random:
             raise ConfigError("augmentation draws", tuple(u.shape), f"need {self.n_random} uniforms per example")
-        k = 0
-        for aug in self.augmentations:
+        return u
+
+    def _apply(self, canvas, geometry, state, u, first: int, k: int) -> torch.Tensor:
+        """Apply the augmentations from index ``first`` on (their draws from column ``k``)."""
+        for aug in list(self.augmentations)[first:]:
             canvas, state = aug.apply(canvas, geometry, state, u[:, k : k + aug.n_random])
             k += aug.n_random
         return canvas
@@ -226,23 +279,22 @@ class ShiftConfig(Settings):
     margin: float = setting(0.0, "clearance kept between the object's bounding box and the FOV edge", unit="m", ge=0)
 
 
-class Shift(Augmentation):
+class Shift(SeparableAugmentation):
     """Shift: uniform translation anywhere in the field of view, object fully visible."""
 
     name = "shift"
     Config = ShiftConfig
     n_random = 2
 
-    def apply(self, canvas, geometry, state, u):
-        B, new = canvas.shape[0], torch.empty_like(state.center)
+    def resampling(self, geometry, state, u):
+        new = torch.empty_like(state.center)
         for a, (n, fov) in enumerate(zip(geometry.shape, geometry.fov)):
             half = min(fov / geometry.pitch, n) / 2
             lo = n / 2 - half + state.box[:, a] / 2 + self.config.margin / geometry.pitch
             hi = n / 2 + half - state.box[:, a] / 2 - self.config.margin / geometry.pitch
             new[:, a] = torch.where(hi >= lo, lo + u[:, a] * (hi - lo), state.center[:, a])  # too big: stays
-        t, one = new - state.center, torch.ones(B, dtype=torch.float64, device=canvas.device)
-        out = _resample_axis(_resample_axis(canvas, -2, t[:, 0], one), -1, t[:, 1], one)
-        return out, ObjectState(new, state.box, state.height)
+        t, one = new - state.center, torch.ones(len(u), dtype=torch.float64, device=u.device)
+        return ((t[:, 0], one), (t[:, 1], one)), ObjectState(new, state.box, state.height)
 
 
 @dataclass
@@ -256,19 +308,18 @@ class RescaleConfig(Settings):
             raise ConfigError("max_height", self.max_height, f"must be >= min_height = {self.min_height:g} m")
 
 
-class Rescale(Augmentation):
+class Rescale(SeparableAugmentation):
     """Rescale: object height ~ U[min_height, max_height], about the object's centre."""
 
     name = "rescale"
     Config = RescaleConfig
     n_random = 1
 
-    def apply(self, canvas, geometry, state, u):
+    def resampling(self, geometry, state, u):
         target = self.config.min_height + (self.config.max_height - self.config.min_height) * u[:, 0]
         s = target / state.height
         c = state.center
-        out = _resample_axis(_resample_axis(canvas, -2, c[:, 0] * (1 - s), s), -1, c[:, 1] * (1 - s), s)
-        return out, ObjectState(c, state.box * s[:, None], target)
+        return ((c[:, 0] * (1 - s), s), (c[:, 1] * (1 - s), s)), ObjectState(c, state.box * s[:, None], target)
 
 
 @dataclass

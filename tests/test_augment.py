@@ -174,3 +174,26 @@ def test_compose_keeps_rescaled_object_in_view():
     torch.manual_seed(1)
     allfour = Compose([cls() for cls in BUILTIN])(c, GEOM)
     assert allfour.shape == c.shape and torch.isfinite(allfour).all() and allfour.min() >= 0
+
+
+@pytest.mark.parametrize("names", [["shift"], ["rescale"], ["rotate"], ["perspective"], ["rescale", "shift"],
+                                   ["shift", "rotate"], ["rotate", "shift"], ["rescale", "shift", "perspective"]])
+def test_place_folds_leading_resamplings_into_the_placement_with_the_same_result(names):
+    # Compose.place resamples the (rows x 28) placement matrices instead of every canvas: the same linear map
+    # (R P) x Q^T = R (P x Q^T), so only rounding differs. Shift and rescale alone, against the float64 canvas
+    # path: the float32 canvas path is off by its cumulative sums' rounding (row sums up to ~30 x 6e-8, ~2e-6);
+    # place resamples in float64 and multiplies once in float32: within 1e-6 (values <= 1). With kornia's
+    # warps (float32 bilinear, ~1.4e-5 from their float64 selves here) both paths share that rounding: 3e-5.
+    augs = [next(c() for c in BUILTIN if c.name == n) for n in names]
+    comp = Compose(augs)
+    g = torch.Generator().manual_seed(4)
+    scenes = torch.rand(6, 1, 28, 28, generator=g)
+    u = torch.rand(6, comp.n_random, generator=g, dtype=torch.float64)
+    got = comp.place(scenes, GEOM, 0.12, u)
+    expect = comp(to_canvas(scenes, GEOM), GEOM, 0.12, u)
+    assert got.dtype == torch.float32 and got.shape == expect.shape and float(got.min()) >= 0
+    torch.testing.assert_close(got, expect, rtol=0, atol=3e-5)
+    if set(names) <= {"shift", "rescale"}:
+        truth = comp(to_canvas(scenes.double(), GEOM), GEOM, 0.12, u)
+        torch.testing.assert_close(got.double(), truth, rtol=0, atol=1e-6)
+    assert float((got - to_canvas(scenes, GEOM)).abs().max()) > 1e-2  # something was transformed

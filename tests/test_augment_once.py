@@ -66,7 +66,7 @@ def test_stored_windows_paste_back_to_the_transformed_canvases_exactly(aug):
     scenes[5] = 0  # a blank scene keeps a one-pixel window, not the whole canvas
     u = draws(augs, len(scenes), seed=0, split="train")
     windows, offsets = store_transformed(augs, GEOM, scenes, u, batch_size=10, object_height=0.12)
-    expect = torch.cat([Compose(augs)(to_canvas(scenes[i : i + 10], GEOM), GEOM, 0.12, u[i : i + 10])
+    expect = torch.cat([Compose(augs).place(scenes[i : i + 10], GEOM, 0.12, u[i : i + 10])
                         for i in range(0, len(scenes), 10)])
     # Lossless: copies of the same float32 values, nothing outside the windows (the same chunks of 10).
     assert torch.equal(paste(windows, offsets, GEOM.shape), expect)

@@ -28,8 +28,13 @@ from .geometry import Geometry, SceneConfig, SensorConfig
 
 __all__ = ["EncoderConfig", "OpticalEncoder"]
 
-#: Above this many operator entries the fine-grid (FFT) path is used instead.
+#: Up to this many operator entries the operator is always used; above it only while it is smaller than what
+#: the fine-grid (FFT) path would allocate for the batch, and never above _HARD_MAX_OPERATOR_ENTRIES (1 GiB).
 _MAX_OPERATOR_ENTRIES = 40_000_000
+_HARD_MAX_OPERATOR_ENTRIES = 2**28
+#: The fine-grid path convolves at most this many padded complex samples at once (~1 GiB); larger batches go
+#: in chunks.
+_DIRECT_CHUNK_SAMPLES = 2**26
 #: Scene geometries whose correlation tensors are kept (oldest dropped first).
 _MAX_GEOMETRIES = 4
 
@@ -281,6 +286,26 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         self._op_cache["op"] = (key, op)
         return op
 
+    def _padded_samples(self) -> int:
+        """Complex samples per image and channel of the fine-grid path's zero-padded convolution (about)."""
+        return 4 * self.geometry.grid[0] * self.geometry.grid[1] * self.subcells**2
+
+    def auto_method(self, batch: int, scene_shape: tuple[int, int]) -> str:
+        """``measure``'s ``"auto"`` choice for ``batch`` scenes of ``scene_shape`` pixels.
+
+        The operator (one matrix product per batch) up to :data:`_MAX_OPERATOR_ENTRIES` entries, and
+        beyond while it takes less memory than the fine-grid path would for the batch (a wide
+        augmentation canvas on a fine grid: the FFT path needed ~20 GB per 1000 scenes); the
+        fine-grid path above 1 GiB of operator.
+        """
+        a, b = self.geometry.embedding
+        entries = self.channels * a * b * scene_shape[0] * scene_shape[1]
+        # A batch's tail (fewer scenes) makes the same choice as its siblings: counted as at least 64 scenes.
+        direct = max(batch, 64) * self.channels * self._padded_samples()
+        if entries <= _MAX_OPERATOR_ENTRIES or entries <= min(direct, _HARD_MAX_OPERATOR_ENTRIES):
+            return "operator"
+        return "direct"
+
     def measure(self, scene: torch.Tensor, height: float | None = None, method: str = "auto") -> torch.Tensor:
         """Noise-free embedding of ``(B, C, h, w)`` scenes of physical height ``height`` metres.
 
@@ -308,17 +333,21 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
             self._check_object_size(height)
         h, w = scene.shape[-2:]
         a, b = self.geometry.embedding
+        s = self.subcells  # the same sub-pixel scene geometry in both paths
+        grid = tuple(n * s for n in self.geometry.grid)
         if method == "auto":
-            method = "operator" if self.channels * a * b * h * w <= _MAX_OPERATOR_ENTRIES else "direct"
+            method = self.auto_method(len(scene), (h, w))
         x = scene.to(self.optics_dtype)
         if method == "operator":
             out = imaging.apply_operator(self.operator((h, w), height), x)
         elif method == "direct":
-            s = self.subcells  # the same sub-pixel scene geometry as the operator
-            grid = tuple(n * s for n in self.geometry.grid)
-            placed = imaging.place(x, grid, self.object_height_px(height) * s, pixel_aspect=self.pixel_aspect)
             psf = imaging.subcell_psf(self.psf(), s)
-            out = imaging.integrate(imaging.fft_convolve(placed, psf[None]), (a, b), self.sensor.sampling)
+            step = max(1, _DIRECT_CHUNK_SAMPLES // (self.channels * self._padded_samples()))
+            out = torch.cat([
+                imaging.integrate(imaging.fft_convolve(
+                    imaging.place(x[i : i + step], grid, self.object_height_px(height) * s, pixel_aspect=self.pixel_aspect),
+                    psf[None]), (a, b), self.sensor.sampling)
+                for i in range(0, len(x), step)])
         else:
             raise ConfigError("method", method, "one of 'auto', 'operator', 'direct'")
         return out.to(scene.dtype)

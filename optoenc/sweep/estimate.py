@@ -47,7 +47,7 @@ def _measure(run, scene_shape) -> dict[str, float]:
     The step is the one training takes (:func:`optoenc.training.run.build`'s rules): precomputed
     embeddings for a fixed encoder, else scenes through the augmentations' canvas and the encoder.
     """
-    from ..augment import Compose, to_canvas
+    from ..augment import Compose
     from ..config import build_encoder
     from ..plugins import get_registry
     from ..training.module import EncoderClassifier
@@ -89,7 +89,7 @@ def _measure(run, scene_shape) -> dict[str, float]:
             def encode(batch):
                 if not augs:
                     return enc.measure(batch)
-                c = Compose(augs)(to_canvas(batch, canvas), canvas, enc.scene_config.object_height)
+                c = Compose(augs).place(batch, canvas, enc.scene_config.object_height)
                 return enc.measure(c, height=canvas.height)
 
             encode(imgs[:10])

@@ -23,7 +23,7 @@ import hashlib
 
 import torch
 
-from ..augment import Compose, to_canvas
+from ..augment import Compose
 from ..errors import ConfigError
 from . import cache
 
@@ -54,10 +54,10 @@ def encode_transformed(encoder, augs, canvas, images: torch.Tensor, u: torch.Ten
     was = encoder.training
     encoder.eval()
     out = []
+    step = _chunk(batch_size, images, canvas)
     try:
-        for i in range(0, len(images), batch_size):
-            c = comp(to_canvas(images[i : i + batch_size], canvas), canvas, encoder.scene_config.object_height,
-                     u[i : i + batch_size])
+        for i in range(0, len(images), step):
+            c = comp.place(images[i : i + step], canvas, encoder.scene_config.object_height, u[i : i + step])
             out.append(encoder.measure(c, height=canvas.height))
             if progress is not None:
                 progress(len(out[-1]))
@@ -77,9 +77,9 @@ def store_transformed(augs, canvas, images: torch.Tensor, u: torch.Tensor, batch
     comp = Compose(list(augs))
     rows, cols = canvas.shape
     parts, boxes = [], []
-    for i in range(0, len(images), batch_size):
-        c = comp(to_canvas(images[i : i + batch_size].to(torch.float32), canvas), canvas, object_height,
-                 u[i : i + batch_size])
+    step = _chunk(batch_size, images, canvas)
+    for i in range(0, len(images), step):
+        c = comp.place(images[i : i + step].to(torch.float32), canvas, object_height, u[i : i + step])
         on = c != 0
         r_any, c_any = on.any(dim=(1, 3)), on.any(dim=(1, 2))  # (B, rows), (B, cols)
         r0, c0 = _first(r_any), _first(c_any)
@@ -114,6 +114,16 @@ def paste(windows: torch.Tensor, offsets: torch.Tensor, shape: tuple[int, int]) 
     idx = (r[:, :, None] * cols + c[:, None, :]).reshape(B, 1, h * w).expand(B, C, h * w)
     out = torch.zeros(B, C, rows * cols, dtype=windows.dtype, device=windows.device)
     return out.scatter_(2, idx, windows.reshape(B, C, h * w)).reshape(B, C, rows, cols)
+
+
+#: Canvas pixels transformed at once (~256 MiB of float32; the transforms hold a few such buffers).
+_CHUNK_PIXELS = 2**26
+
+
+def _chunk(batch_size: int, images: torch.Tensor, canvas) -> int:
+    """Examples per chunk: ``batch_size``, fewer where the canvases are large (a wide field of view)."""
+    per = max(1, images.shape[1] * canvas.shape[0] * canvas.shape[1])
+    return max(1, min(batch_size, _CHUNK_PIXELS // per))
 
 
 def _first(flags: torch.Tensor) -> torch.Tensor:

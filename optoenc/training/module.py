@@ -87,12 +87,11 @@ class EncoderClassifier(L.LightningModule):
                 raise ValueError("stored canvases need their offsets (the batch's third tensor)")
             return self.encoder.measure(paste(x, draws, self.canvas.shape), height=self.canvas.height)
         if len(self.augmentations) and augment:
-            from ..augment import Compose, to_canvas
+            from ..augment import Compose
 
-            canvas = to_canvas(x, self.canvas)
             # Compose tracks each object's position and size from one transform to the next.
-            canvas = Compose(list(self.augmentations))(
-                canvas, self.canvas, self.encoder.scene_config.object_height, draws
+            canvas = Compose(list(self.augmentations)).place(
+                x, self.canvas, self.encoder.scene_config.object_height, draws
             )
             return self.encoder.measure(canvas, height=self.canvas.height)
         return self.encoder.measure(x)
