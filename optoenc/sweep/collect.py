@@ -51,7 +51,7 @@ def cell_rows(spec: SweepSpec, planned: list[PlannedCell]) -> list[dict[str, Any
                 status = {}
         metrics = read_metrics(p.path / RUN_FILES["metrics"])
         times = [float(m["time_s"]) for m in metrics if m.get("time_s")]
-        mode = getattr(run.trainer, "augment_mode", "per_epoch") if run.augment else ""
+        mode = run.trainer.augment_draw if run.augment else ""  # "once" (the paper's protocol) or "epoch"
         rows.append({
             "cell": p.cell.name,
             "state": "finished" if summary else ("failed" if status.get("state") == "failed" else p.state),

@@ -53,3 +53,4 @@ def test_cells_differing_only_in_draw_mode_or_sampling_are_different_kinds(quick
                                  augment=["shift"]))
              for extra in ([], ["trainer.augment_draw=once"], ["sensor.sampling=point"])}
     assert len(kinds) == 3
+
