@@ -100,6 +100,29 @@ def _table4(agg1, agg3) -> list[dict]:
     return out
 
 
+TRANSFORMS = ("shift", "rescale", "rotate", "perspective")
+
+
+def _table3_wide(agg1, agg3) -> str:
+    """Table 3 in the paper's layout: a row per encoder and size, "ours (paper)" per transform, the original
+    column from Table 1's FCNN cell; the learned SLM's per-epoch redraws in rows of their own."""
+    orig = {(r["encoder"], r["embedding"]): r for r in agg1 if r["decoder"] == "fcnn"}
+    cells = {(r["encoder"], r["embedding"], r.get("augment_mode"), r.get("transform")): r for r in agg3}
+    keys = sorted({(e, m, mode) for e, m, mode, _t in cells}, key=lambda k: (_order({"encoder": k[0], "embedding": k[1]}),
+                                                                            k[2] != "once"))
+    def fmt(r):
+        if r is None or r.get("test_acc") is None:
+            return "-"
+        sd = f" ± {r['test_acc_std']:.2f}" if r.get("test_acc_std") is not None else ""
+        paper = f" ({r['paper_acc']:.1f})" if r.get("paper_acc") is not None else ""
+        return f"{r['test_acc']:.2f}{sd}{paper}"
+    lines = ["| encoder | embedding | draws | original | " + " | ".join(TRANSFORMS) + " |", "|" + "---|" * 8]
+    for enc, emb, mode in keys:
+        row = [fmt(orig.get((enc, emb)))] + [fmt(cells.get((enc, emb, mode, t))) for t in TRANSFORMS]
+        lines.append(f"| {enc} | {emb} | {mode} | " + " | ".join(row) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def _sampling(agg1, agg_point) -> list[dict]:
     """The sensor-model check: each cell with physical pixels (Table 1) beside the same cell with point samples."""
     box = {(r["encoder"], r["embedding"], r["decoder"]): r for r in agg1}
@@ -241,6 +264,7 @@ def main() -> None:
         _, planned, rows, agg = _collect(here / "table3.yaml", args.table3)
         atomic_write_text(args.out / "table3.csv", _csv(agg, T3_COLUMNS))
         atomic_write_text(args.out / "table3.md", _md(agg, ("encoder", "embedding", "transform", "augment_mode")))
+        atomic_write_text(args.out / "table3_wide.md", _table3_wide(agg1, agg))
         t4 = _table4(agg1, agg)
         atomic_write_text(args.out / "table4.csv", _csv(t4, T4_COLUMNS))
         atomic_write_text(args.out / "table4.md", _plain_md(t4, T4_COLUMNS))
@@ -248,7 +272,8 @@ def main() -> None:
         if (args.table3 / "curves.png").is_file():
             shutil.copyfile(args.table3 / "curves.png", args.out / "table3_curves.png")
         done = sum(r["state"] == "finished" for r in rows)
-        print(f"table3: {done} of {len(rows)} cells finished")
+        times = [r["wall_time_s"] for r in rows if r["wall_time_s"]]
+        print(f"table3: {done} of {len(rows)} cells finished, {sum(times) / 3600:.2f} h of cell wall time")
     if (args.sampling / "cells").is_dir():
         _, planned, rows, agg = _collect(here / "sampling.yaml", args.sampling)
         ts = _sampling(agg1, agg)
