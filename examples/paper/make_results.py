@@ -1,7 +1,7 @@
 """Write docs/results/ from the paper sweeps: tables (CSV, markdown), curves, learned PSFs, example embeddings.
 
     python examples/paper/make_results.py --table1 sweeps/table1 --table3 sweeps/table3 \
-        --sampling sweeps/sampling --out docs/results
+        --sampling sweeps/sampling --table3-sampling sweeps/table3_sampling --out docs/results
 
 Table 2 (relative drop from 24x32 to 3x4) is derived from Table 1, Table 4 (relative drop under each
 transform) from Tables 1 and 3; the paper's own drops are computed the same way from its Tables 1 and 3.
@@ -138,6 +138,24 @@ def _sampling(agg1, agg_point) -> list[dict]:
     return sorted(out, key=_order)
 
 
+T3S_COLUMNS = ("encoder", "embedding", "transform", "paper_acc", "box_test_acc", "point_test_acc",
+               "point_best_test_acc", "point_minus_box")
+
+
+def _table3_sampling(agg3, agg_point) -> list[dict]:
+    """Table 3's sensor-model check: each cell with physical pixels (table3) beside point samples."""
+    box = {(r["encoder"], r["embedding"], r["transform"]): r for r in agg3 if r.get("augment_mode") == "once"}
+    out = []
+    for r in agg_point:
+        b = box.get((r["encoder"], r["embedding"], r["transform"]), {})
+        out.append({"encoder": r["encoder"], "embedding": r["embedding"], "transform": r["transform"],
+                    "paper_acc": r["paper_acc"], "box_test_acc": b.get("test_acc"), "point_test_acc": r["test_acc"],
+                    "point_best_test_acc": r["best_test_acc"],
+                    "point_minus_box": None if b.get("test_acc") is None or r["test_acc"] is None
+                    else round(r["test_acc"] - b["test_acc"], 2)})
+    return sorted(out, key=_order)
+
+
 def _plain_md(rows, columns) -> str:
     lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
     for r in rows:
@@ -237,6 +255,7 @@ def main() -> None:
     ap.add_argument("--table1", type=Path, default=Path("sweeps/table1"))
     ap.add_argument("--table3", type=Path, default=Path("sweeps/table3"))
     ap.add_argument("--sampling", type=Path, default=Path("sweeps/sampling"))
+    ap.add_argument("--table3-sampling", type=Path, default=Path("sweeps/table3_sampling"))
     ap.add_argument("--out", type=Path, default=Path("docs/results"))
     ap.add_argument("--no-embeddings", action="store_true", help="skip the example-embedding figure")
     args = ap.parse_args()
@@ -260,8 +279,10 @@ def main() -> None:
         done = sum(r["state"] == "finished" for r in rows)
         times = [r["wall_time_s"] for r in rows if r["wall_time_s"]]
         print(f"table1: {done} of {len(rows)} cells finished, {sum(times) / 3600:.2f} h of cell wall time")
+    agg3 = []
     if (args.table3 / "cells").is_dir():
         _, planned, rows, agg = _collect(here / "table3.yaml", args.table3)
+        agg3 = agg
         atomic_write_text(args.out / "table3.csv", _csv(agg, T3_COLUMNS))
         atomic_write_text(args.out / "table3.md", _md(agg, ("encoder", "embedding", "transform", "augment_mode")))
         atomic_write_text(args.out / "table3_wide.md", _table3_wide(agg1, agg))
@@ -281,6 +302,13 @@ def main() -> None:
         atomic_write_text(args.out / "sampling.md", _plain_md(ts, TS_COLUMNS))
         _copy_cells(planned, args.out / "sweep_cells" / "sampling")
         print(f"sampling: {sum(r['state'] == 'finished' for r in rows)} of {len(rows)} cells finished")
+    if (args.table3_sampling / "cells").is_dir():
+        _, planned, rows, agg = _collect(here / "table3_sampling.yaml", args.table3_sampling)
+        ts = _table3_sampling(agg3, agg)
+        atomic_write_text(args.out / "table3_sampling.csv", _csv(ts, T3S_COLUMNS))
+        atomic_write_text(args.out / "table3_sampling.md", _plain_md(ts, T3S_COLUMNS))
+        _copy_cells(planned, args.out / "sweep_cells" / "table3_sampling")
+        print(f"table3_sampling: {sum(r['state'] == 'finished' for r in rows)} of {len(rows)} cells finished")
 
 
 if __name__ == "__main__":
