@@ -295,21 +295,17 @@ def main() -> None:
         done = sum(r["state"] == "finished" for r in rows)
         times = [r["wall_time_s"] for r in rows if r["wall_time_s"]]
         print(f"table3: {done} of {len(rows)} cells finished, {sum(times) / 3600:.2f} h of cell wall time")
-    if (args.sampling / "cells").is_dir():
-        _, planned, rows, agg = _collect(here / "sampling.yaml", args.sampling)
-        ts = _sampling(agg1, agg)
-        atomic_write_text(args.out / "sampling.csv", _csv(ts, TS_COLUMNS))
-        atomic_write_text(args.out / "sampling.md", _plain_md(ts, TS_COLUMNS))
-        _copy_cells(planned, args.out / "sweep_cells" / "sampling")
-        print(f"sampling: {sum(r['state'] == 'finished' for r in rows)} of {len(rows)} cells finished")
-    if (args.table3_sampling / "cells").is_dir():
-        _, planned, rows, agg = _collect(here / "table3_sampling.yaml", args.table3_sampling)
-        ts = _table3_sampling(agg3, agg)
-        atomic_write_text(args.out / "table3_sampling.csv", _csv(ts, T3S_COLUMNS))
-        atomic_write_text(args.out / "table3_sampling.md", _plain_md(ts, T3S_COLUMNS))
-        _copy_cells(planned, args.out / "sweep_cells" / "table3_sampling")
-        print(f"table3_sampling: {sum(r['state'] == 'finished' for r in rows)} of {len(rows)} cells finished")
-
+    for name, sweep_dir, pair, base, columns in (
+        ("sampling", args.sampling, _sampling, agg1, TS_COLUMNS),
+        ("table3_sampling", args.table3_sampling, _table3_sampling, agg3, T3S_COLUMNS),
+    ):
+        if (sweep_dir / "cells").is_dir():  # a sensor-model check: its point-sampled cells beside the base table's
+            _, planned, rows, agg = _collect(here / f"{name}.yaml", sweep_dir)
+            ts = pair(base, agg)
+            atomic_write_text(args.out / f"{name}.csv", _csv(ts, columns))
+            atomic_write_text(args.out / f"{name}.md", _plain_md(ts, columns))
+            _copy_cells(planned, args.out / "sweep_cells" / name)
+            print(f"{name}: {sum(r['state'] == 'finished' for r in rows)} of {len(rows)} cells finished")
 
 if __name__ == "__main__":
     main()
