@@ -96,13 +96,18 @@ def to_canvas(scenes: torch.Tensor, geometry: CanvasGeometry) -> torch.Tensor:
     Exact area resampling (each canvas pixel averages the piecewise-constant
     scene over its area); parts outside the canvas are cropped.
     """
+    py, px = _placement(scenes, geometry)
+    return py.to(scenes.dtype) @ scenes @ px.to(scenes.dtype).T
+
+
+def _placement(scenes: torch.Tensor, geometry: CanvasGeometry) -> tuple[torch.Tensor, torch.Tensor]:
+    """The float64 ``(rows, h)`` and ``(cols, w)`` area matrices placing ``scenes`` on the canvas."""
     h, w = scenes.shape[-2:]
     if abs(geometry.object_width * h / (geometry.object_height * w) - 1) > 1e-6:
         raise ConfigError("scene", tuple(scenes.shape), f"aspect ratio differs from the canvas geometry's {geometry}")
     top, left, rows, cols = geometry.object_box()
-    py = area_matrix(h, geometry.shape[0], top, rows).to(scenes.device, scenes.dtype)
-    px = area_matrix(w, geometry.shape[1], left, cols).to(scenes.device, scenes.dtype)
-    return py @ scenes @ px.T
+    return (area_matrix(h, geometry.shape[0], top, rows).to(scenes.device),
+            area_matrix(w, geometry.shape[1], left, cols).to(scenes.device))
 
 
 @dataclass
@@ -245,11 +250,7 @@ class Compose(nn.Module):
         B = scenes.shape[0]
         state = ObjectState.initial(geometry, B, object_height, scenes.device)
         u = self._draws(B, scenes.device, u)
-        top, left, rows, cols = geometry.object_box()
-        h, w = scenes.shape[-2:]
-        to_canvas(scenes[:0], geometry)  # the same checks
-        p = area_matrix(h, geometry.shape[0], top, rows).to(scenes.device).expand(B, 1, -1, -1)
-        q = area_matrix(w, geometry.shape[1], left, cols).to(scenes.device).expand(B, 1, -1, -1)
+        p, q = (m.expand(B, 1, -1, -1) for m in _placement(scenes, geometry))
         i = k = 0
         for aug in self.augmentations:
             if not isinstance(aug, SeparableAugmentation):

@@ -333,14 +333,14 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
             self._check_object_size(height)
         h, w = scene.shape[-2:]
         a, b = self.geometry.embedding
-        s = self.subcells  # the same sub-pixel scene geometry in both paths
-        grid = tuple(n * s for n in self.geometry.grid)
         if method == "auto":
             method = self.auto_method(len(scene), (h, w))
         x = scene.to(self.optics_dtype)
         if method == "operator":
             out = imaging.apply_operator(self.operator((h, w), height), x)
         elif method == "direct":
+            s = self.subcells  # the same sub-pixel scene geometry as the operator
+            grid = tuple(n * s for n in self.geometry.grid)
             psf = imaging.subcell_psf(self.psf(), s)
             step = max(1, _DIRECT_CHUNK_SAMPLES // (self.channels * self._padded_samples()))
             out = torch.cat([

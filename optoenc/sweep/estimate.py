@@ -47,12 +47,11 @@ def _measure(run, scene_shape) -> dict[str, float]:
     The step is the one training takes (:func:`optoenc.training.run.build`'s rules): precomputed
     embeddings for a fixed encoder, else scenes through the augmentations' canvas and the encoder.
     """
-    from ..augment import Compose
     from ..config import build_encoder
     from ..plugins import get_registry
+    from ..training.augment_once import draws, encode_transformed, store_transformed
     from ..training.module import EncoderClassifier
-    from ..training.augment_once import draws, store_transformed
-    from ..training.run import canvas_for, precomputes
+    from ..training.run import canvas_for, precomputes, stores_transformed
 
     enc = build_encoder(run)
     dec = get_registry("decoder").get(run.names["decoder"])(
@@ -60,7 +59,7 @@ def _measure(run, scene_shape) -> dict[str, float]:
     augs = [get_registry("augmentation").get(a)(cfg) for a, cfg in run.augment.items()]
     canvas = canvas_for(run, enc, scene_shape[-2:]) if augs else None
     pre = precomputes(run, enc)
-    stored = bool(augs) and run.trainer.augment_draw == "once" and not pre  # as build() (no adversary here)
+    stored = stores_transformed(run, enc)
     module = EncoderClassifier(enc, dec, [] if pre else augs, canvas=canvas, lr=run.trainer.lr, precomputed=pre,
                                stored_canvases=stored)
     opt = module.configure_optimizers()
@@ -85,16 +84,16 @@ def _measure(run, scene_shape) -> dict[str, float]:
     if pre:
         with torch.no_grad():
             imgs = torch.rand(200, *scene_shape)
+            u = draws(augs, len(imgs), 0, "train") if augs else None
 
-            def encode(batch):
+            def encode(n):
                 if not augs:
-                    return enc.measure(batch)
-                c = Compose(augs).place(batch, canvas, enc.scene_config.object_height)
-                return enc.measure(c, height=canvas.height)
+                    return enc.measure(imgs[:n])
+                return encode_transformed(enc, augs, canvas, imgs[:n], u[:n], n)
 
-            encode(imgs[:10])
+            encode(10)
             t0 = time.perf_counter()
-            encode(imgs)
+            encode(len(imgs))
             per_example = (time.perf_counter() - t0) / len(imgs)
     return {"step_s": step, "encode_s_per_example": per_example + store_s, "precomputed": pre}
 

@@ -27,7 +27,8 @@ from ..augment import Compose
 from ..errors import ConfigError
 from . import cache
 
-__all__ = ["draws", "encode_transformed", "store_transformed", "paste", "DRAW_MODES"]
+__all__ = ["draws", "encode_transformed", "transformed_embedding", "store_transformed", "stored_embedding",
+           "paste", "DRAW_MODES"]
 
 #: ``trainer.augment_draw`` values.
 DRAW_MODES = ("epoch", "once")
@@ -57,13 +58,23 @@ def encode_transformed(encoder, augs, canvas, images: torch.Tensor, u: torch.Ten
     step = _chunk(batch_size, images, canvas)
     try:
         for i in range(0, len(images), step):
-            c = comp.place(images[i : i + step], canvas, encoder.scene_config.object_height, u[i : i + step])
-            out.append(encoder.measure(c, height=canvas.height))
+            out.append(transformed_embedding(encoder, comp, canvas, images[i : i + step], u[i : i + step]))
             if progress is not None:
                 progress(len(out[-1]))
     finally:
         encoder.train(was)
     return torch.cat(out)
+
+
+def transformed_embedding(encoder, comp: Compose, canvas, scenes: torch.Tensor,
+                          u: torch.Tensor | None = None) -> torch.Tensor:
+    """Noise-free embeddings of ``scenes`` placed on ``canvas`` and transformed by ``comp`` (``u``: draws)."""
+    return encoder.measure(comp.place(scenes, canvas, encoder.scene_config.object_height, u), height=canvas.height)
+
+
+def stored_embedding(encoder, canvas, windows: torch.Tensor, offsets: torch.Tensor) -> torch.Tensor:
+    """Noise-free embeddings of stored transformed scenes (:func:`store_transformed`)."""
+    return encoder.measure(paste(windows, offsets, canvas.shape), height=canvas.height)
 
 
 @torch.no_grad()
@@ -76,7 +87,7 @@ def store_transformed(augs, canvas, images: torch.Tensor, u: torch.Tensor, batch
     """
     comp = Compose(list(augs))
     rows, cols = canvas.shape
-    parts, boxes = [], []
+    parts, corners, boxes = [], [], []
     step = _chunk(batch_size, images, canvas)
     for i in range(0, len(images), step):
         c = comp.place(images[i : i + step].to(torch.float32), canvas, object_height, u[i : i + step])
@@ -86,34 +97,48 @@ def store_transformed(augs, canvas, images: torch.Tensor, u: torch.Tensor, batch
         r1, c1 = rows - _first(r_any.flip(1)), cols - _first(c_any.flip(1))  # one past the last
         blank = ~r_any.any(1)  # nothing to keep: a one-pixel window
         r1, c1 = torch.where(blank, r0 + 1, r1), torch.where(blank, c0 + 1, c1)
-        h, w = int((r1 - r0).clamp_min(1).max()), int((c1 - c0).clamp_min(1).max())
-        parts.append(_crop(c, r0, c0, h, w))
-        boxes.append(torch.stack([r0, c0, r1, c1], 1))
-    box = torch.cat(boxes)
+        h, w = int((r1 - r0).max()), int((c1 - c0).max())
+        corner = _inside(torch.stack([r0, c0], 1), (h, w), canvas.shape)
+        parts.append(_crop(c, corner, (h, w)))
+        corners.append(corner)
+        boxes.append(torch.stack([r0, c0], 1))
     h = max(p.shape[-2] for p in parts)
     w = max(p.shape[-1] for p in parts)
-    offsets = torch.stack([box[:, 0].clamp(max=rows - h), box[:, 1].clamp(max=cols - w)], 1)
+    offsets = _inside(torch.cat(boxes), (h, w), canvas.shape)
     out = torch.empty(len(images), parts[0].shape[1], h, w, dtype=parts[0].dtype)
     n = 0
-    for part in parts:  # re-window each chunk at the common size (from its pasted canvas: exact copies)
-        k = len(part)
-        pasted = paste(part, torch.stack([box[n : n + k, 0].clamp(max=rows - part.shape[-2]),
-                                          box[n : n + k, 1].clamp(max=cols - part.shape[-1])], 1), canvas.shape)
-        out[n : n + k] = _crop(pasted, offsets[n : n + k, 0], offsets[n : n + k, 1], h, w)
-        n += k
+    for part, corner in zip(parts, corners):  # each chunk re-windowed at the common size: exact copies
+        out[n : n + len(part)] = _crop(paste(part, corner, canvas.shape), offsets[n : n + len(part)], (h, w))
+        n += len(part)
     return out, offsets
 
 
 def paste(windows: torch.Tensor, offsets: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
     """Canvases ``(B, C, rows, cols)``, zero but for each example's window at its offset."""
     B, C, h, w = windows.shape
-    rows, cols = shape
-    offsets = offsets.to(windows.device, torch.long)
-    r = offsets[:, 0, None] + torch.arange(h, device=windows.device)
-    c = offsets[:, 1, None] + torch.arange(w, device=windows.device)
-    idx = (r[:, :, None] * cols + c[:, None, :]).reshape(B, 1, h * w).expand(B, C, h * w)
-    out = torch.zeros(B, C, rows * cols, dtype=windows.dtype, device=windows.device)
-    return out.scatter_(2, idx, windows.reshape(B, C, h * w)).reshape(B, C, rows, cols)
+    idx = _window_index(offsets.to(windows.device, torch.long), C, (h, w), shape[1])
+    out = torch.zeros(B, C, shape[0] * shape[1], dtype=windows.dtype, device=windows.device)
+    return out.scatter_(2, idx, windows.reshape(B, C, h * w)).reshape(B, C, *shape)
+
+
+def _crop(canvases: torch.Tensor, corners: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
+    """The ``(B, C, h, w)`` windows of ``canvases`` at ``corners``: the inverse of :func:`paste`."""
+    B, C, _rows, cols = canvases.shape
+    return canvases.reshape(B, C, -1).gather(2, _window_index(corners, C, size, cols)).reshape(B, C, *size)
+
+
+def _window_index(corners: torch.Tensor, channels: int, size: tuple[int, int], cols: int) -> torch.Tensor:
+    """``(B, C, h w)`` flat canvas indices of the ``size`` windows whose top-left corners are ``corners``."""
+    h, w = size
+    r = corners[:, 0, None] + torch.arange(h, device=corners.device)
+    c = corners[:, 1, None] + torch.arange(w, device=corners.device)
+    return (r[:, :, None] * cols + c[:, None, :]).reshape(len(corners), 1, h * w).expand(-1, channels, -1)
+
+
+def _inside(corners: torch.Tensor, size: tuple[int, int], shape: tuple[int, int]) -> torch.Tensor:
+    """Corners moved up or left just enough for ``size`` windows to lie on the canvas (they still cover
+    the object: it ends before the canvas edge and is no larger than the window)."""
+    return torch.stack([corners[:, 0].clamp(max=shape[0] - size[0]), corners[:, 1].clamp(max=shape[1] - size[1])], 1)
 
 
 #: Canvas pixels transformed at once (~256 MiB of float32; the transforms hold a few such buffers).
@@ -129,16 +154,6 @@ def _chunk(batch_size: int, images: torch.Tensor, canvas) -> int:
 def _first(flags: torch.Tensor) -> torch.Tensor:
     """Index of the first True of each row of ``(B, n)`` flags (0 where none)."""
     return flags.to(torch.int8).argmax(1)
-
-
-def _crop(c: torch.Tensor, r0: torch.Tensor, c0: torch.Tensor, h: int, w: int) -> torch.Tensor:
-    """``(B, C, h, w)`` windows of canvases ``c`` at per-example corners (clamped inside the canvas)."""
-    B, C, rows, cols = c.shape
-    r0, c0 = r0.clamp(max=rows - h), c0.clamp(max=cols - w)
-    r = r0[:, None] + torch.arange(h)
-    k = c0[:, None] + torch.arange(w)
-    idx = (r[:, :, None] * cols + k[:, None, :]).reshape(B, 1, h * w).expand(B, C, h * w)
-    return c.reshape(B, C, rows * cols).gather(2, idx).reshape(B, C, h, w)
 
 
 def token(augs, canvas, u: dict[str, torch.Tensor]) -> str:

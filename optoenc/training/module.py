@@ -81,19 +81,17 @@ class EncoderClassifier(L.LightningModule):
         if self.precomputed:
             return x
         if self.stored_canvases:  # the data is the transformed scenes themselves
-            from .augment_once import paste
+            from .augment_once import stored_embedding
 
             if draws is None:
                 raise ValueError("stored canvases need their offsets (the batch's third tensor)")
-            return self.encoder.measure(paste(x, draws, self.canvas.shape), height=self.canvas.height)
+            return stored_embedding(self.encoder, self.canvas, x, draws)
         if len(self.augmentations) and augment:
             from ..augment import Compose
+            from .augment_once import transformed_embedding
 
             # Compose tracks each object's position and size from one transform to the next.
-            canvas = Compose(list(self.augmentations)).place(
-                x, self.canvas, self.encoder.scene_config.object_height, draws
-            )
-            return self.encoder.measure(canvas, height=self.canvas.height)
+            return transformed_embedding(self.encoder, Compose(list(self.augmentations)), self.canvas, x, draws)
         return self.encoder.measure(x)
 
     def forward(self, x: torch.Tensor, augment: bool = False, draws: torch.Tensor | None = None) -> torch.Tensor:

@@ -31,7 +31,7 @@ from .module import EncoderClassifier
 from .resume import clear_interrupted, interrupted_note, mark_failed, raise_on_signals, read_checkpoint
 from .rundir import RUN_FILES, atomic_write_text, write_json
 
-__all__ = ["Parts", "build", "precomputes", "canvas_for", "fit", "evaluate", "checkpoint_path", "load_encoder", "verify"]
+__all__ = ["Parts", "build", "precomputes", "stores_transformed", "canvas_for", "fit", "evaluate", "checkpoint_path", "load_encoder", "verify"]
 
 log = logging.getLogger(__name__)
 
@@ -50,6 +50,13 @@ def precomputes(run: RunConfig, encoder) -> bool:
     """Whether a run trains on embeddings computed once (a fixed encoder, no per-epoch transforms)."""
     return bool(run.trainer.precompute and not encoder.learnable
                 and (not run.augment or run.trainer.augment_draw == "once"))
+
+
+def stores_transformed(run: RunConfig, encoder) -> bool:
+    """Whether a run keeps its transformed scenes (:func:`augment_once.store_transformed`): transforms
+    drawn once for an encoder that is not precomputed, without an adversary (which needs the plain scenes)."""
+    return bool(run.augment and run.trainer.augment_draw == "once" and not precomputes(run, encoder)
+                and run.privacy.adversary_weight == 0)
 
 
 def canvas_for(run: RunConfig, encoder, scene_shape):
@@ -81,9 +88,7 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
     )
     once = bool(augs) and run.trainer.augment_draw == "once"
     precomputed = precomputes(run, encoder)
-    privacy = adversary.from_config(run.privacy, encoder, splits.train[0].shape[1:])
-    # A learned encoder drawn once keeps its transformed scenes (an adversary needs the plain ones).
-    stored = once and not precomputed and privacy is None
+    stored = stores_transformed(run, encoder)
     bs, ebs = run.trainer.batch_size, run.trainer.eval_batch_size
     data = {"train": splits.train, "val": splits.val, "test": splits.test}
     canvas = canvas_for(run, encoder, splits.train[0].shape[-2:]) if augs else None
@@ -130,7 +135,7 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
         encoder_lr=run.trainer.encoder_lr,
         seed=run.seed,
         precomputed=precomputed,
-        adversary=privacy,
+        adversary=adversary.from_config(run.privacy, encoder, splits.train[0].shape[1:]),
         stored_canvases=stored,
     )
     if decoder.norm_kind == "standardize":
