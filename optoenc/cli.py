@@ -89,9 +89,10 @@ def _parser() -> argparse.ArgumentParser:
         description="fidelity (default): the paper pipeline (as published and on its grid), the presets and a "
         "sweep of each knob against the converged truth; converge: the convergence study behind the truth; "
         "speed: the learned SLM's step vs the published paper step, interleaved; auto: the cheapest measured "
-        "setting meeting --tolerance; optics: PSF timings.",
+        "setting meeting --tolerance; optics: PSF timings; precision: bfloat16 operator and decoder products against "
+        "float32 (embedding and gradient errors, step speed-up, interleaved).",
     )
-    b.add_argument("what", nargs="?", default="fidelity", choices=("fidelity", "converge", "speed", "auto", "optics"),
+    b.add_argument("what", nargs="?", default="fidelity", choices=("fidelity", "converge", "speed", "auto", "optics", "precision"),
                    help="which benchmark")
     b.add_argument("--out", metavar="DIR", help="also write CSV/PNG here")
     b.add_argument("--docs", metavar="DIR", help="fidelity: also rewrite the generated blocks of DIR/benchmarks.md and "
@@ -110,6 +111,9 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--encode-count", type=int, default=10000, help="digits encoded for the fixed encoders' encode time")
     b.add_argument("--encode-all", action=argparse.BooleanOptionalAction, default=True,
                    help="also time encoding all 70,000 MNIST digits with fixed_slm, cache cold")
+    b.add_argument("--embedding", default="24x32", metavar="AxB", help="precision: the sensor embedding")
+    b.add_argument("--scene-shape", metavar="HxW", help="precision: a canvas the digits are centred on "
+                   "(109x146: Table 3's 24x32 learned SLM); default the 28x28 digits")
     b.add_argument("--encoder", help="auto: the encoder to choose a setting for")
     b.add_argument("--tolerance", type=float, default=0.01, help="auto: largest relative embedding error (0.01 = 1%%)")
     b.add_argument("--safety", type=float, default=1.0, help="auto: require error * safety <= tolerance")

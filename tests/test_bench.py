@@ -169,7 +169,8 @@ FAKE = [
 def test_auto_picks_the_cheapest_reliable_setting_meeting_the_tolerance():
     c = choose(FAKE, "learned_slm", 0.01)
     assert c.row["setting"] == "grid=576x768"
-    assert c.fidelity.resolved() == {"grid": (576, 768), "dtype": "float32", "padding": "auto", "psf_oversample": 1}
+    assert c.fidelity.resolved() == {"grid": (576, 768), "dtype": "float32", "padding": "auto", "psf_oversample": 1,
+                                     "operator_dtype": "same"}
     assert any("padding=0" in r for r in c.rejected)
     assert choose(FAKE, "learned_slm", 0.005).fidelity.preset == "reference"
     assert choose(FAKE, "learned_slm", 0.05).row["setting"] == "fast"

@@ -25,9 +25,9 @@ import torch
 from optoenc import sweep
 from optoenc.training.rundir import atomic_write_text
 
-T1_COLUMNS = ("encoder", "embedding", "decoder", "seeds", "test_acc", "test_acc_std", "best_test_acc",
+T1_COLUMNS = ("encoder", "embedding", "decoder", "precision", "seeds", "test_acc", "test_acc_std", "best_test_acc",
               "reference_test_acc", "paper_acc", "diff_vs_paper")
-T3_COLUMNS = ("encoder", "embedding", "decoder", "transform", "augment_mode", "seeds", "test_acc", "test_acc_std",
+T3_COLUMNS = ("encoder", "embedding", "decoder", "transform", "augment_mode", "precision", "seeds", "test_acc", "test_acc_std",
               "best_test_acc", "paper_acc", "diff_vs_paper")
 T2_COLUMNS = ("encoder", "decoder", "drop", "paper_drop")
 T4_COLUMNS = ("encoder", "embedding", "transform", "augment_mode", "drop", "paper_drop")
@@ -35,6 +35,7 @@ TS_COLUMNS = ("encoder", "embedding", "decoder", "paper_acc", "box_test_acc", "p
               "point_minus_box")
 ENCODERS = ("lens", "coded_aperture", "diffuser", "fixed_slm", "learned_slm", "learned_phase_mask")
 EMBEDDINGS = ("24x32", "12x16", "6x8", "3x4")
+DEFAULT_PRECISION = "float32/32-true"
 
 
 def _csv(rows, columns) -> str:
@@ -115,11 +116,16 @@ def _table3_wide(agg1, agg3) -> str:
             return "-"
         sd = f" ± {r['test_acc_std']:.2f}" if r.get("test_acc_std") is not None else ""
         paper = f" ({r['paper_acc']:.1f})" if r.get("paper_acc") is not None else ""
-        return f"{r['test_acc']:.2f}{sd}{paper}"
+        fast = "" if r.get("precision", DEFAULT_PRECISION) == DEFAULT_PRECISION else " †"
+        return f"{r['test_acc']:.2f}{sd}{fast}{paper}"
     lines = ["| encoder | embedding | draws | original | " + " | ".join(TRANSFORMS) + " |", "|" + "---|" * 8]
     for enc, emb, mode in keys:
         row = [fmt(orig.get((enc, emb)))] + [fmt(cells.get((enc, emb, mode, t))) for t in TRANSFORMS]
         lines.append(f"| {enc} | {emb} | {mode} | " + " | ".join(row) + " |")
+    fast = sorted({r["precision"] for r in agg3 if r.get("precision", DEFAULT_PRECISION) != DEFAULT_PRECISION})
+    if fast:
+        lines.append(f"\n† trained with bfloat16 products ({', '.join(fast)}: operator dtype / trainer precision; "
+                     f"the rest {DEFAULT_PRECISION}), see docs/results.md.")
     return "\n".join(lines) + "\n"
 
 
@@ -284,7 +290,7 @@ def main() -> None:
         _, planned, rows, agg = _collect(here / "table3.yaml", args.table3)
         agg3 = agg
         atomic_write_text(args.out / "table3.csv", _csv(agg, T3_COLUMNS))
-        atomic_write_text(args.out / "table3.md", _md(agg, ("encoder", "embedding", "transform", "augment_mode")))
+        atomic_write_text(args.out / "table3.md", _md(agg, ("encoder", "embedding", "transform", "augment_mode", "precision")))
         atomic_write_text(args.out / "table3_wide.md", _table3_wide(agg1, agg))
         t4 = _table4(agg1, agg)
         atomic_write_text(args.out / "table4.csv", _csv(t4, T4_COLUMNS))

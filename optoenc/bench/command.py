@@ -96,6 +96,19 @@ def main(args) -> int:
         if out is not None:
             print(converge.write_csv(rows, out / "converge.csv"))
         return 0
+    if args.what == "precision":
+        from . import precision
+
+        emb = parse_hw("--embedding", args.embedding, "24x32")
+        shape = parse_hw("--scene-shape", args.scene_shape, "109x146") if args.scene_shape else None
+        print(load_line("start"))
+        with bar:
+            rows = precision.compare(encoders, emb, shape, repeats=args.repeats, progress=progress)
+        print(precision.format_table(rows))
+        print(load_line("end"))
+        if out is not None:
+            print(precision.write_csv(rows, out / "precision.csv"))
+        return 0
     if args.what == "speed":
         from . import speed
 

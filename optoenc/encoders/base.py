@@ -13,6 +13,7 @@ from __future__ import annotations
 import abc
 import dataclasses
 import math
+import weakref
 from dataclasses import dataclass
 from typing import Any, ClassVar, Mapping
 
@@ -124,6 +125,8 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         limits.check_simulation(self.knobs)  # before any array is made: a grid that cannot fit fails here
         self.geometry = Geometry.of(self.sensor, self.fidelity)
         self.optics_dtype = getattr(torch, self.knobs.dtype)
+        #: Precision of the scene -> embedding operator's products (``fidelity.operator_dtype``).
+        self.operator_dtype = self.optics_dtype if self.knobs.operator_dtype == "same" else getattr(torch, self.knobs.operator_dtype)
         self._check_object_size()
         self._psf_cache: tuple[Any, torch.Tensor] | None = None
         self._op_cache: dict[Any, Any] = {}
@@ -247,12 +250,20 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
                 f"expected (1 or 3, {self.geometry.grid[0]}, {self.geometry.grid[1]})"
             )
         psf = imaging.sensor_psf(raw, self.channels, name=f"encoder {self.name}")
+        if psf.requires_grad:  # a backward pass frees the graph behind it: the next forward rebuilds it
+            me = weakref.ref(self)
+            psf.register_hook(lambda grad: (me() is not None and me()._drop_graph(psf), grad)[1])
         self._psf_cache = (key, psf)
         return psf
 
+    def _drop_graph(self, psf: torch.Tensor) -> None:
+        """Forget the cached PSF ``psf`` and its operator once a backward pass has gone through them."""
+        if self._psf_cache is not None and self._psf_cache[1] is psf:
+            self.invalidate_psf()
+
     # ----------------------------------------------------------------- imaging
     def _correlations(self, scene_shape: tuple[int, int], height_px: float, device) -> tuple[torch.Tensor, torch.Tensor]:
-        key = ("corr", scene_shape, round(height_px, 9), self.optics_dtype, str(device), self.sensor.sampling)
+        key = ("corr", scene_shape, round(height_px, 9), self.operator_dtype, str(device), self.sensor.sampling)
         if key not in self._op_cache:
             H, W = self.geometry.grid
             a, b = self.geometry.embedding
@@ -267,7 +278,7 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
             stale = [k for k in self._op_cache if k[0] == "corr"]
             for k in stale[: max(0, len(stale) - _MAX_GEOMETRIES + 1)]:
                 del self._op_cache[k]
-            self._op_cache[key] = (ry.to(device, self.optics_dtype), rx.to(device, self.optics_dtype))
+            self._op_cache[key] = (ry.to(device, self.operator_dtype), rx.to(device, self.operator_dtype))
         return self._op_cache[key]
 
     def operator(self, scene_shape: tuple[int, int], height: float | None = None) -> torch.Tensor:
@@ -275,6 +286,7 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
 
         Exact for a piecewise-constant scene: it equals place -> convolve ->
         integrate on the simulation grid (see :mod:`optoenc.encoders.imaging`).
+        Built and held in ``self.operator_dtype`` (``fidelity.operator_dtype``).
         """
         psf = self.psf()
         ry, rx = self._correlations(tuple(scene_shape), self.object_height_px(height), psf.device)
@@ -282,7 +294,7 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         cached = self._op_cache.get("op")
         if cached is not None and cached[0] == key:
             return cached[1]
-        op = imaging.scene_operator(psf, ry, rx)
+        op = imaging.scene_operator(psf.to(self.operator_dtype), ry, rx)
         self._op_cache["op"] = (key, op)
         return op
 
@@ -318,7 +330,10 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
                 (default ``scene.object_height``).
             method: ``"operator"`` (precomputed scene->embedding matrix),
                 ``"direct"`` (place, FFT-convolve and integrate on the grid)
-                or ``"auto"`` (operator unless it would be too large).
+                or ``"auto"`` (operator unless it would be too large). The
+                operator's products run in ``fidelity.operator_dtype``; the
+                rest keeps ``fidelity.dtype``, also under a mixed-precision
+                trainer (autocast is off in here).
 
         Returns:
             ``(B, channels, a, b)`` in the scene's dtype (``float32`` for integer or bool scenes).
@@ -331,13 +346,18 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
             if isinstance(height, bool) or not isinstance(height, (int, float)) or not math.isfinite(height) or height <= 0:
                 raise ConfigError("height", height, "must be a finite number > 0 m (the scene's physical height)")
             self._check_object_size(height)
-        h, w = scene.shape[-2:]
-        a, b = self.geometry.embedding
         if method == "auto":
-            method = self.auto_method(len(scene), (h, w))
+            method = self.auto_method(len(scene), tuple(scene.shape[-2:]))
+        with torch.autocast(scene.device.type, enabled=False):  # the optics keep their own precisions
+            out = self._measure(scene, height, method)
+        return out.to(scene.dtype)
+
+    def _measure(self, scene: torch.Tensor, height: float | None, method: str) -> torch.Tensor:
+        a, b = self.geometry.embedding
         x = scene.to(self.optics_dtype)
         if method == "operator":
-            out = imaging.apply_operator(self.operator((h, w), height), x)
+            op = self.operator(scene.shape[-2:], height)
+            out = imaging.apply_operator(op, x.to(op.dtype)).to(self.optics_dtype)
         elif method == "direct":
             s = self.subcells  # the same sub-pixel scene geometry as the operator
             grid = tuple(n * s for n in self.geometry.grid)
@@ -350,7 +370,7 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
                 for i in range(0, len(x), step)])
         else:
             raise ConfigError("method", method, "one of 'auto', 'operator', 'direct'")
-        return out.to(scene.dtype)
+        return out
 
     def add_sensor_noise(self, clean: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
         """Sensor noise (zero-mean, after integration) and optional ADC quantisation."""

@@ -22,18 +22,28 @@ from .spec import SweepSpec, _fmt
 __all__ = ["cell_rows", "aggregate", "write_tables", "CELL_COLUMNS", "SUMMARY_COLUMNS"]
 
 CELL_COLUMNS = (
-    "cell", "state", "encoder", "embedding", "decoder", "transform", "augment_mode", "seed", "epochs",
+    "cell", "state", "encoder", "embedding", "decoder", "transform", "augment_mode", "precision", "seed", "epochs",
     "best_epoch", "val_acc", "test_acc", "best_test_acc", "reference_test_acc", "paper_acc", "wall_time_s",
     "epoch_time_s", "error",
 )
 SUMMARY_COLUMNS = (
-    "encoder", "embedding", "decoder", "transform", "augment_mode", "seeds", "test_acc", "test_acc_std",
+    "encoder", "embedding", "decoder", "transform", "augment_mode", "precision", "seeds", "test_acc", "test_acc_std",
     "best_test_acc", "reference_test_acc", "paper_acc", "diff_vs_paper", "wall_time_s",
 )
 
 
 def _pct(x: Any) -> float | None:
     return None if x is None or (isinstance(x, float) and math.isnan(x)) else round(100 * float(x), 2)
+
+
+def precision(run) -> str:
+    """``"<operator dtype>/<trainer precision>"``: ``float32/32-true`` by default, ``bfloat16/bf16-mixed`` fast."""
+    from ..fidelity.knobs import FIDELITY_PRESETS
+
+    op = run.fidelity.operator_dtype or "same"
+    if op == "same":
+        op = run.fidelity.dtype or FIDELITY_PRESETS.get(run.fidelity.preset, {}).get("dtype", run.fidelity.preset)
+    return f"{op}/{run.trainer.precision}"
 
 
 def cell_rows(spec: SweepSpec, planned: list[PlannedCell]) -> list[dict[str, Any]]:
@@ -60,6 +70,7 @@ def cell_rows(spec: SweepSpec, planned: list[PlannedCell]) -> list[dict[str, Any
             "decoder": run.names["decoder"],
             "transform": "+".join(run.augment) or "original",
             "augment_mode": mode,
+            "precision": precision(run),
             "seed": run.seed,
             "epochs": len(metrics) or None,
             "best_epoch": summary.get("best_epoch"),
@@ -85,7 +96,7 @@ def _mean_std(vals: list[float]) -> tuple[float | None, float | None]:
 
 def aggregate(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Finished cells grouped over seeds: mean and sample standard deviation of the test accuracy."""
-    keys = ("encoder", "embedding", "decoder", "transform", "augment_mode")
+    keys = ("encoder", "embedding", "decoder", "transform", "augment_mode", "precision")
     groups: dict[tuple, list[dict[str, Any]]] = {}
     for r in rows:
         if r["state"] == "finished":

@@ -17,3 +17,22 @@ def test_collected_rows_name_each_cells_draw_mode(tmp_path):
     rows = sweep.cell_rows(spec, sweep.plan(spec, tmp_path / "out"))
     got = {(r["transform"], r["augment_mode"]) for r in rows}
     assert got == {("shift", "once"), ("shift", "epoch"), ("original", "")}
+
+
+def test_cells_trained_in_bfloat16_are_labelled_and_kept_apart(tmp_path):
+    # A bfloat16 cell and its float32 twin must not be averaged as if they were seeds of one cell.
+    from optoenc import sweep
+
+    spec_file = tmp_path / "s.yaml"
+    spec_file.write_text(
+        "name: s\nbase: {encoder: lens, decoder: logistic, trainer: {max_epochs: 1}}\n"
+        "axes:\n  - fidelity.operator_dtype: [same, bfloat16]\n    trainer.precision: [32-true, bf16-mixed]\n"
+        "cells:\n  - {fidelity.preset: reference}\n"
+    )
+    spec = sweep.load_spec(spec_file)
+    rows = sweep.cell_rows(spec, sweep.plan(spec, tmp_path / "out"))
+    assert [r["precision"] for r in rows] == ["float32/32-true", "float32/bf16-mixed", "bfloat16/32-true",
+                                              "bfloat16/bf16-mixed", "float64/32-true"]
+    for r in rows:
+        r.update(state="finished", test_acc=90.0, best_test_acc=90.0, wall_time_s=1.0)
+    assert len(sweep.aggregate(rows)) == 5
