@@ -350,12 +350,22 @@ class Rotate(Augmentation):
 
 @dataclass
 class PerspectiveConfig(Settings):
-    distortion: float = setting(0.5, "corner displacement, as a fraction of the object's half size", ge=0, le=1)
+    distortion: float = setting(0.5, "corner displacement, as a fraction of the box's half size", ge=0, le=1)
     p: float = setting(1.0, "probability of distorting an example", ge=0, le=1)
+    about: str = setting(
+        "object", "the box whose corners move: 'object' (the object's own box: a distortion of the object in "
+        "place) or 'field' (the whole field of view, as torchvision's RandomPerspective on the paper's padded "
+        "object plane: the object is also moved and shrunk)", choices=("object", "field"),
+    )
 
 
 class Perspective(Augmentation):
-    """Perspective: each corner of the object's box moves inward by up to distortion x half its size (kornia semantics)."""
+    """Perspective: each corner of a box moves inward by up to distortion x half its size (kornia semantics).
+
+    The box is the object's (``about: object``, a distortion in place) or the field of view's
+    (``about: field``: the paper applied torchvision's ``RandomPerspective`` to its whole padded object
+    plane, which also displaces and shrinks the object).
+    """
 
     name = "perspective"
     Config = PerspectiveConfig
@@ -364,8 +374,13 @@ class Perspective(Augmentation):
     def apply(self, canvas, geometry, state, u):
         B, dt, dev = canvas.shape[0], canvas.dtype, canvas.device
         signs = torch.tensor([[1, 1], [-1, 1], [-1, -1], [1, -1]], dtype=torch.float64, device=dev)  # TL TR BR BL
-        half = state.box.flip(1)[:, None, :] / 2  # (B, 1, 2) as (x, y)
-        src = state.center.flip(1)[:, None, :] - 0.5 - signs * half
+        if self.config.about == "field":  # the canvas: the field of view in whole pixels
+            half = torch.tensor([geometry.shape[1] / 2, geometry.shape[0] / 2], dtype=torch.float64, device=dev)
+            half = half.expand(B, 1, 2)  # (B, 1, 2) as (x, y)
+            src = half - 0.5 - signs * half
+        else:
+            half = state.box.flip(1)[:, None, :] / 2  # (B, 1, 2) as (x, y)
+            src = state.center.flip(1)[:, None, :] - 0.5 - signs * half
         on = (u[:, 0] < self.config.p).double()[:, None, None]
         shift = self.config.distortion * half * u[:, 1:].reshape(B, 4, 2) * signs * on
         from kornia.geometry.transform import get_perspective_transform, warp_perspective

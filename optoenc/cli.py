@@ -106,7 +106,7 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--speed", action=argparse.BooleanOptionalAction, default=True,
                    help="fidelity: also time learned_slm's default step vs the published paper step, interleaved")
     b.add_argument("--repeats", type=int, default=5, help="speed: interleaved repeats per thread count")
-    b.add_argument("--threads", default="1,2", metavar="N,M", help="speed: torch thread counts timed (e.g. 1 on a shared machine)")
+    b.add_argument("--threads", default="1,2", metavar="N,M", help="speed: torch thread counts timed (e.g. 1 on a shared machine); precision: the first")
     b.add_argument("--paper-grid", default="380x507", metavar="HxW", help="grid of the paper pipeline")
     b.add_argument("--encode-count", type=int, default=10000, help="digits encoded for the fixed encoders' encode time")
     b.add_argument("--encode-all", action=argparse.BooleanOptionalAction, default=True,

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from optoenc.augment import (
-    BUILTIN, Compose, Perspective, Rescale, Rotate, Shift, canvas_geometry, to_canvas,
+    BUILTIN, Compose, ObjectState, Perspective, Rescale, Rotate, Shift, canvas_geometry, to_canvas,
 )
 from optoenc.errors import ConfigError
 
@@ -197,3 +197,32 @@ def test_place_folds_leading_resamplings_into_the_placement_with_the_same_result
         truth = comp(to_canvas(scenes.double(), GEOM), GEOM, 0.12, u)
         torch.testing.assert_close(got.double(), truth, rtol=0, atol=1e-6)
     assert float((got - to_canvas(scenes, GEOM)).abs().max()) > 1e-2  # something was transformed
+
+
+def test_perspective_about_the_field_moves_and_shrinks_the_object():
+    # The paper applied torchvision's RandomPerspective (distortion 0.5) to its whole padded object plane:
+    # the field's corners move inward by up to a quarter of its size, so a centred object is displaced
+    # and shrunk as well as distorted; about the object it stays in its own box.
+    c = to_canvas(_digits(64), GEOM)
+    u = Perspective().draw(64)
+    obj = Perspective().apply(c, GEOM, ObjectState.initial(GEOM, 64), u)[0]
+    field = Perspective({"about": "field"}).apply(c, GEOM, ObjectState.initial(GEOM, 64), u)[0]
+    rows = torch.arange(GEOM.shape[0], dtype=c.dtype)[:, None]
+    cols = torch.arange(GEOM.shape[1], dtype=c.dtype)
+    def centroid(im):
+        m = im.sum((1, 2, 3))
+        return torch.stack([(im[:, 0] * rows).sum((1, 2)) / m, (im[:, 0] * cols).sum((1, 2)) / m], 1)
+    move_obj = (centroid(obj) - centroid(c)).norm(dim=1)
+    move_field = (centroid(field) - centroid(c)).norm(dim=1)
+    # The field is ~4-5x the object's size: its corner moves (up to a quarter of the field) carry the object
+    # several pixels on average; about the object the centroid moves by a fraction of the 28-px box.
+    assert move_field.mean() > 3 * move_obj.mean() and move_field.mean() > 3.0
+    # A homography that maps the field into itself shrinks what it carries: less light on the canvas.
+    assert (field.sum((1, 2, 3)) < c.sum((1, 2, 3))).all()
+    # Where the object fills the field, the two are the same transform.
+    tight = canvas_geometry(0.12, (28, 28), 0.12, 0.12)
+    ct = to_canvas(_digits(4), tight)
+    ut = Perspective().draw(4)
+    a = Perspective().apply(ct, tight, ObjectState.initial(tight, 4), ut)[0]
+    b = Perspective({"about": "field"}).apply(ct, tight, ObjectState.initial(tight, 4), ut)[0]
+    torch.testing.assert_close(a, b, atol=1e-5, rtol=1e-5)

@@ -30,3 +30,31 @@ def test_warm_start_example_reaches_the_first_step(tmp_path, monkeypatch):
     proc = subprocess.run(cmd, capture_output=True, text=True, env={**__import__("os").environ})
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "first training step after" in proc.stdout
+
+
+def test_every_paper_sweep_spec_composes_and_names_its_paper_figures(tmp_path):
+    """Each shipped spec expands to valid runs (a bad key would fail the sweep only when its cell starts)."""
+    import pytest
+
+    from optoenc import sweep
+    from optoenc.errors import ConfigError
+
+    specs = sorted((EXAMPLES / "paper").glob("*.yaml"))
+    assert len(specs) >= 6
+    for path in specs:
+        spec = sweep.load_spec(path)
+        planned = sweep.plan(spec, tmp_path / spec.name)  # composes and validates every cell's configuration
+        assert planned, path.name
+        figures = [spec.paper_figure(p.cell) for p in planned]
+        if spec.paper:  # every figure the spec quotes belongs to at least one of its cells
+            assert sum(f is not None for f in figures) >= len(spec.paper), path.name
+        if path.stem == "table3_paper":
+            assert {p.run.augment["perspective"].about for p in planned if "perspective" in p.run.augment} == {"field"}
+    with pytest.raises(ConfigError, match="augment.perspective.about"):  # and the check itself can fail
+        sweep.plan(sweep.load_spec(_bad_spec(tmp_path)), tmp_path / "bad")
+
+
+def _bad_spec(tmp_path):
+    p = tmp_path / "bad.yaml"
+    p.write_text("name: bad\naxes:\n  - augment.perspective.about: [sideways]\n    augment: [perspective]\n")
+    return p

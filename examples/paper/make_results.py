@@ -1,11 +1,15 @@
 """Write docs/results/ from the paper sweeps: tables (CSV, markdown), curves, learned PSFs, example embeddings.
 
     python examples/paper/make_results.py --table1 sweeps/table1 --table3 sweeps/table3 \
-        --sampling sweeps/sampling --table3-sampling sweeps/table3_sampling --out docs/results
+        --sampling sweeps/sampling --table3-sampling sweeps/table3_sampling --table3-paper sweeps/table3_paper \
+        --precision sweeps/precision --out docs/results
 
 Table 2 (relative drop from 24x32 to 3x4) is derived from Table 1, Table 4 (relative drop under each
 transform) from Tables 1 and 3; the paper's own drops are computed the same way from its Tables 1 and 3.
-``--sampling`` adds the sensor-model check (examples/paper/sampling.yaml) beside Table 1's cells.
+``--sampling`` adds the sensor-model check (examples/paper/sampling.yaml) beside Table 1's cells;
+``--precision`` the bfloat16 check (examples/paper/precision.yaml) beside the cells' float32 or bfloat16
+twins in Tables 1 and 3 (precision.csv / precision.md); ``--table3-paper`` the paper's own transforms
+(examples/paper/table3_paper.yaml: perspective about the whole field, shift with point samples).
 
 Each sweep is run first with ``optoenc sweep examples/paper/table1.yaml`` (and table3.yaml); missing
 or unfinished cells are left out of the tables (their count is printed), so this can be re-run as
@@ -162,6 +166,46 @@ def _table3_sampling(agg3, agg_point) -> list[dict]:
     return sorted(out, key=_order)
 
 
+TP_COLUMNS = ("encoder", "embedding", "decoder", "transform", "precision", "seeds", "test_acc", "test_acc_std",
+              "twin_precision", "twin_seeds", "twin_test_acc", "twin_test_acc_std", "difference")
+
+
+def _precision(base, agg_check) -> list[dict]:
+    """The bfloat16 check: each cell of examples/paper/precision.yaml beside its twin of another precision in
+    Table 1 or Table 3 (same encoder, embedding, decoder, transform and draw mode)."""
+    keys = ("encoder", "embedding", "decoder", "transform", "augment_mode")
+    out = []
+    for r in agg_check:
+        twin = next((b for b in base if all(b.get(k) == r.get(k) for k in keys)
+                     and b.get("precision") != r.get("precision")), {})
+        out.append({**{k: r[k] for k in ("encoder", "embedding", "decoder", "transform", "precision", "seeds",
+                                         "test_acc", "test_acc_std")},
+                    "twin_precision": twin.get("precision"), "twin_seeds": twin.get("seeds"),
+                    "twin_test_acc": twin.get("test_acc"), "twin_test_acc_std": twin.get("test_acc_std"),
+                    "difference": None if twin.get("test_acc") is None or r["test_acc"] is None
+                    else round(r["test_acc"] - twin["test_acc"], 2)})
+    return sorted(out, key=_order)
+
+
+TPAPER_COLUMNS = ("encoder", "embedding", "transform", "variant", "paper_acc", "table3_test_acc", "check_test_acc",
+                  "check_best_test_acc", "check_minus_table3")
+
+
+def _table3_paper(agg3, agg_check) -> list[dict]:
+    """The paper's own transforms (examples/paper/table3_paper.yaml) beside Table 3's cell and the paper."""
+    ours = {(r["encoder"], r["embedding"], r["transform"]): r for r in agg3
+            if r.get("augment_mode") == "once" and r.get("precision", DEFAULT_PRECISION) == DEFAULT_PRECISION}
+    out = []
+    for r in agg_check:
+        t = ours.get((r["encoder"], r["embedding"], r["transform"]), {})
+        out.append({"encoder": r["encoder"], "embedding": r["embedding"], "transform": r["transform"],
+                    "variant": r.get("variant"), "paper_acc": r["paper_acc"], "table3_test_acc": t.get("test_acc"),
+                    "check_test_acc": r["test_acc"], "check_best_test_acc": r["best_test_acc"],
+                    "check_minus_table3": None if t.get("test_acc") is None or r["test_acc"] is None
+                    else round(r["test_acc"] - t["test_acc"], 2)})
+    return sorted(out, key=_order)
+
+
 def _plain_md(rows, columns) -> str:
     lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
     for r in rows:
@@ -262,6 +306,8 @@ def main() -> None:
     ap.add_argument("--table3", type=Path, default=Path("sweeps/table3"))
     ap.add_argument("--sampling", type=Path, default=Path("sweeps/sampling"))
     ap.add_argument("--table3-sampling", type=Path, default=Path("sweeps/table3_sampling"))
+    ap.add_argument("--table3-paper", type=Path, default=Path("sweeps/table3_paper"))
+    ap.add_argument("--precision", type=Path, default=Path("sweeps/precision"))
     ap.add_argument("--out", type=Path, default=Path("docs/results"))
     ap.add_argument("--no-embeddings", action="store_true", help="skip the example-embedding figure")
     args = ap.parse_args()
@@ -304,8 +350,10 @@ def main() -> None:
     for name, sweep_dir, pair, base, columns in (
         ("sampling", args.sampling, _sampling, agg1, TS_COLUMNS),
         ("table3_sampling", args.table3_sampling, _table3_sampling, agg3, T3S_COLUMNS),
+        ("table3_paper", args.table3_paper, _table3_paper, agg3, TPAPER_COLUMNS),
+        ("precision", args.precision, _precision, agg1 + agg3, TP_COLUMNS),
     ):
-        if (sweep_dir / "cells").is_dir():  # a sensor-model check: its point-sampled cells beside the base table's
+        if (sweep_dir / "cells").is_dir():  # a check: its cells beside the base table's (point samples, precision)
             _, planned, rows, agg = _collect(here / f"{name}.yaml", sweep_dir)
             ts = pair(base, agg)
             atomic_write_text(args.out / f"{name}.csv", _csv(ts, columns))

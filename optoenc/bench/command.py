@@ -103,7 +103,7 @@ def main(args) -> int:
         shape = parse_hw("--scene-shape", args.scene_shape, "109x146") if args.scene_shape else None
         print(load_line("start"))
         with bar:
-            rows = precision.compare(encoders, emb, shape, repeats=args.repeats, progress=progress)
+            rows = precision.compare(encoders, emb, shape, repeats=args.repeats, threads=threads[0], progress=progress)
         print(precision.format_table(rows))
         print(load_line("end"))
         if out is not None:

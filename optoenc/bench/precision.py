@@ -81,11 +81,12 @@ def _rel(a: torch.Tensor, b: torch.Tensor) -> float:
 
 
 def compare(encoders, embedding=(24, 32), scene_shape=None, batch: int = 200, repeats: int = 5, seed: int = 0,
-            progress=None) -> list[dict]:
+            threads: int = 1, progress=None) -> list[dict]:
     """One row per encoder: embedding and gradient errors of bfloat16 products, and the step speed-up.
 
     Args:
         scene_shape: ``(H, W)`` canvas the digits are centred on (``None``: the 28 x 28 digits alone).
+        threads: torch threads while timing (1: what a sweep gives each cell on a 2-core machine).
 
     Returns:
         ``[{"encoder", "embedding", "scene_shape", "emb_rel_l2", "emb_rel_max", "noise_rel", "grad_rel_l2"
@@ -93,8 +94,6 @@ def compare(encoders, embedding=(24, 32), scene_shape=None, batch: int = 200, re
         the minibatch noise training already lives with), "step": {...}, "decoder_step": {...}}]`` (steps: :func:`_interleaved`).
     """
     from ..datasets.mnist import MNIST
-    from ..decoders import FCNN
-    from ..plugins import get_registry
 
     s = MNIST().load()
     x, y = s.train[0][:batch], s.train[1][:batch]
@@ -102,50 +101,62 @@ def compare(encoders, embedding=(24, 32), scene_shape=None, batch: int = 200, re
     if scene_shape is not None:
         x, x2 = _canvas(x, tuple(scene_shape)), _canvas(x2, tuple(scene_shape))
     rows = []
-    for i, name in enumerate(encoders):
-        if progress is not None:
-            progress(i, len(encoders), name)
-        cls = get_registry("encoder").get(name)
-        encs = {}
-        for od in ("same", "bfloat16"):
-            torch.manual_seed(seed)
-            encs[od] = cls(None, sensor={"embedding": list(embedding)}, fidelity={"operator_dtype": od})
-        ref, fast = encs["same"], encs["bfloat16"]
-        height = ref.scene_config.object_height * x.shape[-2] / 28
-        ref_emb = ref.measure(x, height=height, method="operator")
-        fast_emb = fast.measure(x, height=height, method="operator")
-        noise_rel = 10 ** (-ref.sensor.snr_db / 20) if getattr(ref.sensor, "snr_db", None) else float("nan")
-        torch.manual_seed(seed)
-        dec = FCNN(in_shape=ref.output_shape, num_classes=10, learnable_encoder=ref.learnable)
-        grad = spread = None
-        if ref.learnable:
-            grads = []
-            for enc, xs, ys in ((ref, x, y), (fast, x, y), (ref, x2, y2)):
-                enc.zero_grad()
-                F.cross_entropy(dec(enc.measure(xs, height=height, method="operator")), ys).backward()
-                grads.append(torch.cat([p.grad.flatten() for p in enc.parameters() if p.grad is not None]))
-            grad, spread = _rel(grads[1], grads[0]), _rel(grads[2], grads[0])
-
-        def run_step(enc, fast_mode):
-            torch.manual_seed(seed)
-            d = FCNN(in_shape=enc.output_shape, num_classes=10, learnable_encoder=enc.learnable)
-            return _step(lambda v: enc.measure(v, height=height, method="operator"), enc.parameters(), d, x, y, fast_mode)
-
-        step = _interleaved(run_step(ref, False), run_step(fast, True), repeats)
-        torch.manual_seed(seed)
-        d_ref = FCNN(in_shape=ref.output_shape, num_classes=10)
-        d_fast = FCNN(in_shape=ref.output_shape, num_classes=10)
-        d_fast.load_state_dict(d_ref.state_dict())
-        emb = ref_emb.detach()
-        dstep = _interleaved(_step(None, (), d_ref, emb, y, False), _step(None, (), d_fast, emb, y, True), repeats)
-        rows.append({
-            "encoder": name, "embedding": "x".join(map(str, embedding)),
-            "scene_shape": "x".join(map(str, x.shape[-2:])),
-            "emb_rel_l2": _rel(fast_emb, ref_emb),
-            "emb_rel_max": float((fast_emb - ref_emb).abs().max() / ref_emb.abs().max().clamp_min(1e-30)),
-            "noise_rel": noise_rel, "grad_rel_l2": grad, "grad_batch_spread": spread, "step": step, "decoder_step": dstep,
-        })
+    before = torch.get_num_threads()
+    torch.set_num_threads(int(threads))
+    try:
+        for i, name in enumerate(encoders):
+            if progress is not None:
+                progress(i, len(encoders), name)
+            rows.append(_compare_one(name, embedding, x, y, x2, y2, repeats, seed))
+    finally:
+        torch.set_num_threads(before)
     return rows
+
+
+def _compare_one(name, embedding, x, y, x2, y2, repeats, seed) -> dict:
+    """One encoder's row of :func:`compare`."""
+    from ..decoders import FCNN
+    from ..plugins import get_registry
+
+    cls = get_registry("encoder").get(name)
+    encs = {}
+    for od in ("same", "bfloat16"):
+        torch.manual_seed(seed)
+        encs[od] = cls(None, sensor={"embedding": list(embedding)}, fidelity={"operator_dtype": od})
+    ref, fast = encs["same"], encs["bfloat16"]
+    height = ref.scene_config.object_height * x.shape[-2] / 28
+
+    def encode(enc):
+        return lambda v: enc.measure(v, height=height, method="operator")
+
+    ref_emb, fast_emb = encode(ref)(x).detach(), encode(fast)(x).detach()
+    snr = ref.sensor.snr_db
+    grad = spread = None
+    if ref.learnable:
+        torch.manual_seed(seed)
+        dec = FCNN(in_shape=ref.output_shape, num_classes=10, learnable_encoder=True)
+        grads = []
+        for enc, xs, ys in ((ref, x, y), (fast, x, y), (ref, x2, y2)):
+            enc.zero_grad()
+            F.cross_entropy(dec(encode(enc)(xs)), ys).backward()
+            grads.append(torch.cat([p.grad.flatten() for p in enc.parameters() if p.grad is not None]))
+        grad, spread = _rel(grads[1], grads[0]), _rel(grads[2], grads[0])
+
+    def decoder(learnable=False):
+        torch.manual_seed(seed)  # the same initial weights for both sides
+        return FCNN(in_shape=ref.output_shape, num_classes=10, learnable_encoder=learnable)
+
+    step = _interleaved(_step(encode(ref), ref.parameters(), decoder(ref.learnable), x, y, False),
+                        _step(encode(fast), fast.parameters(), decoder(ref.learnable), x, y, True), repeats)
+    dstep = _interleaved(_step(None, (), decoder(), ref_emb, y, False), _step(None, (), decoder(), ref_emb, y, True),
+                         repeats)
+    return {
+        "encoder": name, "embedding": "x".join(map(str, embedding)), "scene_shape": "x".join(map(str, x.shape[-2:])),
+        "emb_rel_l2": _rel(fast_emb, ref_emb),
+        "emb_rel_max": float((fast_emb - ref_emb).abs().max() / ref_emb.abs().max().clamp_min(1e-30)),
+        "noise_rel": 10 ** (-snr / 20) if snr is not None else float("nan"),
+        "grad_rel_l2": grad, "grad_batch_spread": spread, "step": step, "decoder_step": dstep,
+    }
 
 
 def format_table(rows: list[dict]) -> str:

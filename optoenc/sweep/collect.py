@@ -22,12 +22,13 @@ from .spec import SweepSpec, _fmt
 __all__ = ["cell_rows", "aggregate", "write_tables", "CELL_COLUMNS", "SUMMARY_COLUMNS"]
 
 CELL_COLUMNS = (
-    "cell", "state", "encoder", "embedding", "decoder", "transform", "augment_mode", "precision", "seed", "epochs",
+    "cell", "state", "encoder", "embedding", "decoder", "transform", "augment_mode", "precision", "variant", "seed",
+    "epochs",
     "best_epoch", "val_acc", "test_acc", "best_test_acc", "reference_test_acc", "paper_acc", "wall_time_s",
     "epoch_time_s", "error",
 )
 SUMMARY_COLUMNS = (
-    "encoder", "embedding", "decoder", "transform", "augment_mode", "precision", "seeds", "test_acc", "test_acc_std",
+    "encoder", "embedding", "decoder", "transform", "augment_mode", "precision", "variant", "seeds", "test_acc", "test_acc_std",
     "best_test_acc", "reference_test_acc", "paper_acc", "diff_vs_paper", "wall_time_s",
 )
 
@@ -44,6 +45,16 @@ def precision(run) -> str:
     if op == "same":
         op = run.fidelity.dtype or FIDELITY_PRESETS.get(run.fidelity.preset, {}).get("dtype", run.fidelity.preset)
     return f"{op}/{run.trainer.precision}"
+
+
+#: Spec keys with columns of their own (or that do not change the experiment): not part of a cell's ``variant``.
+_COLUMN_KEYS = {"encoder", "decoder", "dataset", "sensor.embedding", "augment", "trainer.augment_draw", "seed",
+                "fidelity.operator_dtype", "trainer.precision", "trainer.verify_preset"}
+
+
+def variant(cell) -> str:
+    """The cell's other settings from the spec's axes (``about=field,sampling=point``); ``""`` for none."""
+    return ",".join(f"{k.rsplit('.', 1)[-1]}={_fmt(v)}" for k, v in cell.values if k not in _COLUMN_KEYS)
 
 
 def cell_rows(spec: SweepSpec, planned: list[PlannedCell]) -> list[dict[str, Any]]:
@@ -71,6 +82,7 @@ def cell_rows(spec: SweepSpec, planned: list[PlannedCell]) -> list[dict[str, Any
             "transform": "+".join(run.augment) or "original",
             "augment_mode": mode,
             "precision": precision(run),
+            "variant": variant(p.cell),
             "seed": run.seed,
             "epochs": len(metrics) or None,
             "best_epoch": summary.get("best_epoch"),
@@ -96,7 +108,7 @@ def _mean_std(vals: list[float]) -> tuple[float | None, float | None]:
 
 def aggregate(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Finished cells grouped over seeds: mean and sample standard deviation of the test accuracy."""
-    keys = ("encoder", "embedding", "decoder", "transform", "augment_mode", "precision")
+    keys = ("encoder", "embedding", "decoder", "transform", "augment_mode", "precision", "variant")
     groups: dict[tuple, list[dict[str, Any]]] = {}
     for r in rows:
         if r["state"] == "finished":

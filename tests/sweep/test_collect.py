@@ -36,3 +36,21 @@ def test_cells_trained_in_bfloat16_are_labelled_and_kept_apart(tmp_path):
     for r in rows:
         r.update(state="finished", test_acc=90.0, best_test_acc=90.0, wall_time_s=1.0)
     assert len(sweep.aggregate(rows)) == 5
+
+
+def test_a_cells_other_axis_settings_are_its_variant(tmp_path):
+    # table3_paper's perspective about the field must not be averaged with (or mistaken for) Table 3's.
+    from optoenc import sweep
+
+    spec_file = tmp_path / "s.yaml"
+    spec_file.write_text(
+        "name: s\nbase: {encoder: lens, decoder: logistic, augment: perspective, trainer: {max_epochs: 1}}\n"
+        "axes:\n  - augment.perspective.about: [object, field]\n    seed: [0, 1]\n"
+    )
+    spec = sweep.load_spec(spec_file)
+    rows = sweep.cell_rows(spec, sweep.plan(spec, tmp_path / "out"))
+    assert [r["variant"] for r in rows] == ["about=object", "about=object", "about=field", "about=field"]
+    for r in rows:
+        r.update(state="finished", test_acc=90.0 + r["seed"], best_test_acc=91.0, wall_time_s=1.0)
+    agg = sweep.aggregate(rows)
+    assert [(a["variant"], a["seeds"]) for a in agg] == [("about=object", 2), ("about=field", 2)]  # seeds pooled
