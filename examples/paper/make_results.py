@@ -342,6 +342,7 @@ def main() -> None:
         atomic_write_text(args.out / "table4.csv", _csv(t4, T4_COLUMNS))
         atomic_write_text(args.out / "table4.md", _plain_md(t4, T4_COLUMNS))
         _copy_cells(planned, args.out / "sweep_cells" / "table3")
+        _learned_psfs(planned, args.out / "table3_learned_psfs.png")
         if (args.table3 / "curves.png").is_file():
             shutil.copyfile(args.table3 / "curves.png", args.out / "table3_curves.png")
         done = sum(r["state"] == "finished" for r in rows)
