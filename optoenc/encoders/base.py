@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import functools
 import math
 import weakref
 from dataclasses import dataclass
@@ -83,6 +84,16 @@ def _as_intensity(scene: Any) -> torch.Tensor:
         raise DataError(f"scene: {bad} pixel(s) are NaN or infinite; intensities must be finite")
     return scene
 
+
+
+def _drop_graph(encoder_ref, token, grad):
+    """PSF hook: once a backward pass has gone through the cached PSF (identified by ``token``), forget it and
+    its operator, whose graph that pass freed. Holds only a weak reference to the encoder and the token."""
+    enc = encoder_ref()
+    cache = None if enc is None else enc._psf_cache
+    if cache is not None and cache[0][-1] is token:
+        enc.invalidate_psf()
+    return grad
 
 class OpticalEncoder(Documented, nn.Module, abc.ABC):
     """An optical encoder: scene ``(B, C, h, w)`` -> sensor embedding ``(B, C_out, a, b)``.
@@ -241,7 +252,7 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         per optimiser step when learning).
         """
         key = self._state_key()
-        if self._psf_cache is not None and self._psf_cache[0] == key:
+        if self._psf_cache is not None and self._psf_cache[0][: len(key)] == key:
             return self._psf_cache[1]
         raw = self.compute_psf()
         if raw.dim() != 3 or raw.shape[0] not in (1, 3) or tuple(raw.shape[1:]) != self.geometry.grid:
@@ -251,15 +262,11 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
             )
         psf = imaging.sensor_psf(raw, self.channels, name=f"encoder {self.name}")
         if psf.requires_grad:  # a backward pass frees the graph behind it: the next forward rebuilds it
-            me = weakref.ref(self)
-            psf.register_hook(lambda grad: (me() is not None and me()._drop_graph(psf), grad)[1])
+            token = object()  # the hook holds neither the PSF nor the encoder: no reference cycle keeps a graph
+            psf.register_hook(functools.partial(_drop_graph, weakref.ref(self), token))
+            key = key + (token,)
         self._psf_cache = (key, psf)
         return psf
-
-    def _drop_graph(self, psf: torch.Tensor) -> None:
-        """Forget the cached PSF ``psf`` and its operator once a backward pass has gone through them."""
-        if self._psf_cache is not None and self._psf_cache[1] is psf:
-            self.invalidate_psf()
 
     # ----------------------------------------------------------------- imaging
     def _correlations(self, scene_shape: tuple[int, int], height_px: float, device) -> tuple[torch.Tensor, torch.Tensor]:
