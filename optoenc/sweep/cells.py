@@ -66,7 +66,9 @@ def _leaves(tree, prefix: str = "") -> dict[str, Any]:
     out: dict[str, Any] = {}
     for k, v in (tree or {}).items():
         key = f"{prefix}{k}"
-        if isinstance(v, dict) and v and k != "augment":
+        if isinstance(v, dict) and v:
+            if key == "augment":  # which augmentations run is a setting of its own
+                out[key] = sorted(v)
             out.update(_leaves(v, f"{key}."))
         else:
             out[key] = v

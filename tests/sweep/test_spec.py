@@ -109,6 +109,20 @@ def test_cell_states(tmp_path):
     assert cell_state(d, "seed: 0\ntrainer: {threads: 1, max_epochs: 2, logger: csv}\n") == "finished"
 
 
+def test_an_augmentation_setting_added_later_does_not_make_a_cell_stale(tmp_path):
+    d = tmp_path / "cell"
+    d.mkdir()
+    (d / "summary.json").write_text("{}")
+    (d / "config.yaml").write_text("augment: {perspective: {distortion: 0.5, p: 1.0}}\n")
+    grown = "augment: {perspective: {distortion: 0.5, p: 1.0, about: object}}\n"
+    assert cell_state(d, grown) == "finished"
+    # Another value of a shared setting, or another set of augmentations, is a different run.
+    assert cell_state(d, "augment: {perspective: {distortion: 0.6, p: 1.0}}\n") == "changed"
+    assert cell_state(d, "augment: {rotate: {max_angle: 90.0}}\n") == "changed"
+    assert cell_state(d, "augment: {perspective: {distortion: 0.5, p: 1.0}, rotate: {max_angle: 90.0}}\n") == "changed"
+    assert cell_state(d, "augment: {}\n") == "changed"
+
+
 def test_a_cell_trained_by_a_live_process_is_left_alone(tmp_path):
     import os
     import socket
