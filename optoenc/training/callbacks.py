@@ -69,8 +69,9 @@ class EpochTest(L.Callback):
     """Measures test accuracy after every epoch (``test_acc_epoch``), for the paper's "best test" column.
 
     Each batch is seeded exactly as :meth:`EncoderClassifier.on_test_batch_start`
-    seeds the final test, so the selected epoch's figure equals the reported
-    test accuracy; the global RNG state is restored afterwards (training
+    seeds the final test, and runs in the trainer's precision context as its
+    test loop does, so the selected epoch's figure equals the reported test
+    accuracy; the global RNG state is restored afterwards (training
     reseeds per batch anyway). Must come before :class:`EpochMetrics`.
     """
 
@@ -84,7 +85,8 @@ class EpochTest(L.Callback):
         pl_module.eval()
         correct = total = 0
         try:
-            with torch.no_grad():
+            # In the trainer's precision (bf16-mixed: autocast), as Lightning's own test loop runs the final test.
+            with torch.no_grad(), trainer.precision_plugin.test_step_context():
                 for i, batch in enumerate(self.loader):
                     x, y, *rest = (t.to(pl_module.device) for t in batch)
                     pl_module.on_test_batch_start(batch, i)
