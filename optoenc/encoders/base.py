@@ -85,15 +85,15 @@ def _as_intensity(scene: Any) -> torch.Tensor:
     return scene
 
 
-
 def _drop_graph(encoder_ref, token, grad):
     """PSF hook: once a backward pass has gone through the cached PSF (identified by ``token``), forget it and
     its operator, whose graph that pass freed. Holds only a weak reference to the encoder and the token."""
     enc = encoder_ref()
     cache = None if enc is None else enc._psf_cache
-    if cache is not None and cache[0][-1] is token:
+    if cache is not None and cache[2] is token:
         enc.invalidate_psf()
     return grad
+
 
 class OpticalEncoder(Documented, nn.Module, abc.ABC):
     """An optical encoder: scene ``(B, C, h, w)`` -> sensor embedding ``(B, C_out, a, b)``.
@@ -139,7 +139,8 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         #: Precision of the scene -> embedding operator's products (``fidelity.operator_dtype``).
         self.operator_dtype = self.optics_dtype if self.knobs.operator_dtype == "same" else getattr(torch, self.knobs.operator_dtype)
         self._check_object_size()
-        self._psf_cache: tuple[Any, torch.Tensor] | None = None
+        #: ``(state key, PSF, token of its hook or None)``
+        self._psf_cache: tuple[Any, torch.Tensor, object | None] | None = None
         self._op_cache: dict[Any, Any] = {}
 
     # ----------------------------------------------------------------- to implement
@@ -252,7 +253,7 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         per optimiser step when learning).
         """
         key = self._state_key()
-        if self._psf_cache is not None and self._psf_cache[0][: len(key)] == key:
+        if self._psf_cache is not None and self._psf_cache[0] == key:
             return self._psf_cache[1]
         raw = self.compute_psf()
         if raw.dim() != 3 or raw.shape[0] not in (1, 3) or tuple(raw.shape[1:]) != self.geometry.grid:
@@ -261,11 +262,11 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
                 f"expected (1 or 3, {self.geometry.grid[0]}, {self.geometry.grid[1]})"
             )
         psf = imaging.sensor_psf(raw, self.channels, name=f"encoder {self.name}")
+        token = None
         if psf.requires_grad:  # a backward pass frees the graph behind it: the next forward rebuilds it
             token = object()  # the hook holds neither the PSF nor the encoder: no reference cycle keeps a graph
             psf.register_hook(functools.partial(_drop_graph, weakref.ref(self), token))
-            key = key + (token,)
-        self._psf_cache = (key, psf)
+        self._psf_cache = (key, psf, token)
         return psf
 
     # ----------------------------------------------------------------- imaging
