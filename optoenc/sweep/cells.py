@@ -14,8 +14,9 @@ __all__ = ["compose_cell", "cell_dir", "cell_state", "STATUS", "VOLATILE_KEYS", 
 #: The per-cell status file (``state``: running, finished, failed; ``error``; times).
 STATUS = "status.json"
 #: Settings of the machine or worker, not of the experiment (like a thread count, they change at most
-#: rounding): they never make a finished cell stale.
-VOLATILE_KEYS = ("trainer.threads", "trainer.progress", "trainer.accelerator")
+#: rounding), and where the cell is stored (a sweep directory copied or moved elsewhere, a cell renamed
+#: when the spec grows an axis): they never make a finished cell stale.
+VOLATILE_KEYS = ("trainer.threads", "trainer.progress", "trainer.accelerator", "output.root", "output.name")
 #: Values that mean the same run (``limit_*_batches``: 1.0 and null are both "all batches").
 _SAME = {"trainer.limit_train_batches": (1.0, None), "trainer.limit_val_batches": (1.0, None),
          "trainer.limit_test_batches": (1.0, None)}

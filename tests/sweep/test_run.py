@@ -58,3 +58,12 @@ def test_sweep_isolates_failures_skips_finished_and_collects(tmp_path):
     assert "FAILED" in again.stderr and bad.name in again.stderr  # failed: re-run
     dry = _sweep(str(spec), "--out", str(out), "--dry-run")
     assert dry.returncode == 0 and "finished" in dry.stdout and "failed" in dry.stdout
+    # A sweep directory copied elsewhere (as docs/results/README.md resumes from committed cells) keeps its
+    # finished cells: where a cell is stored is not a setting of its run.
+    import shutil
+
+    moved = tmp_path / "elsewhere"
+    shutil.copytree(out / "cells", moved / "cells")
+    dry = _sweep(str(spec), "--out", str(moved), "--dry-run")
+    assert dry.returncode == 0
+    assert next(line for line in dry.stdout.splitlines() if line.rstrip().endswith(ok.name)).startswith("finished")
