@@ -90,6 +90,15 @@ def test_wall_time_counts_every_segment_of_a_resumed_run(tmp_path, quick):
     assert resumed["wall_time_s"] >= resumed["segment_wall_time_s"] + 1.5
 
 
+def test_wall_time_of_an_uninterrupted_run_is_its_segment(tmp_path, quick):
+    # One segment: the run's wall time is that segment's. Testing from the best checkpoint restores the
+    # callbacks' states; the clock's must not add the best epoch's time (>= the 1.5 s sleep) a second time.
+    # 0.5 s: both are read within the few statements that write the summary.
+    run = compose(overrides=quick + ["trainer.max_epochs=2"], names={"encoder": "diffuser", "decoder": "logistic"})
+    summary = fit(run, tmp_path / "one", callbacks=[_SlowFirstEpoch()])
+    assert abs(summary["wall_time_s"] - summary["segment_wall_time_s"]) < 0.5
+
+
 def test_resume_through_the_cli(tmp_path, quick_args, capsys):
     assert main(["fit", "--encoder", "diffuser", "--decoder", "logistic", "--trainer.max_epochs=1", *quick_args]) == 0
     run = _run_dir(tmp_path)
