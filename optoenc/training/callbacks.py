@@ -137,12 +137,18 @@ class WallClock(L.Callback):
     A resumed run starts from the time its checkpoint recorded, so ``total()``
     is the wall time of the uninterrupted path to the result (the work done
     after the last checkpoint of an interrupted segment is redone, and
-    counted once).
+    counted once). Only fitting restores it: ``trainer.test(ckpt_path=...)``
+    restores every callback's state too, which would set the clock back to
+    the best epoch's time and count that time twice.
     """
 
     def __init__(self, start: float | None = None):
         self.start = time.time() if start is None else start
         self.before = 0.0
+        self.stage: str | None = None
+
+    def setup(self, trainer, pl_module, stage: str) -> None:  # Lightning calls it before restoring states
+        self.stage = stage
 
     def total(self) -> float:
         """Seconds: this segment so far plus the segments before its checkpoint."""
@@ -152,7 +158,8 @@ class WallClock(L.Callback):
         return {"wall_time_s": self.total()}
 
     def load_state_dict(self, state_dict: dict) -> None:
-        self.before = float(state_dict.get("wall_time_s", 0.0))
+        if self.stage in (None, "fit"):
+            self.before = float(state_dict.get("wall_time_s", 0.0))
 
 
 class FiniteLoss(L.Callback):

@@ -281,9 +281,6 @@ def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> di
         if isinstance(err, OptoencError):  # the CLI's one line says where that is
             err.args = (f"{err}; the run is marked failed in {marker}",)
         raise
-    # trainer.test(ckpt_path=...) restores every callback's state, the clock's included (to the best epoch's
-    # time): the run's wall time is read now and the time after training added to it.
-    fit_wall, fit_end = clock.total(), time.time()
     best = checkpoint_path(run_dir, "best")
     best_val = float(trainer.checkpoint_callback.best_model_score or float("nan"))
     if best_val != best_val:  # ddp_spawn: the callback's state stays in the workers; metrics.csv has it
@@ -303,7 +300,7 @@ def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> di
         "test_acc": float(test[0]["test_acc"]) if test else float("nan"),
         "best_test_acc": _best_test(run_dir),
         "fidelity": parts.module.encoder.knobs.to_dict(),
-        "wall_time_s": round(fit_wall + time.time() - fit_end, 2),  # every segment of a resumed run
+        "wall_time_s": round(clock.total(), 2),  # every segment of a resumed run
         "segment_wall_time_s": round(time.time() - start, 2),
         "encoder": to_dict(run.encoder),
         "scene": to_dict(run.scene),

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import shutil
 import subprocess
 import sys
 
@@ -60,8 +61,6 @@ def test_sweep_isolates_failures_skips_finished_and_collects(tmp_path):
     assert dry.returncode == 0 and "finished" in dry.stdout and "failed" in dry.stdout
     # A sweep directory copied elsewhere (as docs/results/README.md resumes from committed cells) keeps its
     # finished cells: where a cell is stored is not a setting of its run.
-    import shutil
-
     moved = tmp_path / "elsewhere"
     shutil.copytree(out / "cells", moved / "cells")
     dry = _sweep(str(spec), "--out", str(moved), "--dry-run")
