@@ -90,9 +90,10 @@ def _parser() -> argparse.ArgumentParser:
         "sweep of each knob against the converged truth; converge: the convergence study behind the truth; "
         "speed: the learned SLM's step vs the published paper step, interleaved; auto: the cheapest measured "
         "setting meeting --tolerance; optics: PSF timings; precision: bfloat16 operator and decoder products against "
-        "float32 (embedding and gradient errors, step speed-up, interleaved).",
+        "float32 (embedding and gradient errors, step speed-up, interleaved); steps: the training step of a sweep "
+        "spec's cells (--spec, --only) with the whole scene operator and with the support region, interleaved.",
     )
-    b.add_argument("what", nargs="?", default="fidelity", choices=("fidelity", "converge", "speed", "auto", "optics", "precision"),
+    b.add_argument("what", nargs="?", default="fidelity", choices=("fidelity", "converge", "speed", "auto", "optics", "precision", "steps"),
                    help="which benchmark")
     b.add_argument("--out", metavar="DIR", help="also write CSV/PNG here")
     b.add_argument("--docs", metavar="DIR", help="fidelity: also rewrite the generated blocks of DIR/benchmarks.md and "
@@ -118,6 +119,8 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--tolerance", type=float, default=0.01, help="auto: largest relative embedding error (0.01 = 1%%)")
     b.add_argument("--safety", type=float, default=1.0, help="auto: require error * safety <= tolerance")
     b.add_argument("--from-csv", metavar="CSV", help="auto: choose among the rows of a CSV of `optoenc bench --out`")
+    b.add_argument("--spec", metavar="SPEC.yaml", help="steps: the sweep spec whose cells are timed")
+    b.add_argument("--only", action="append", metavar="GLOB", help="steps: only the cells whose name matches (repeatable)")
     sw = sub.add_parser("sweep", help="run a sweep of runs from a spec (resumable), collect CSV, tables and plots")
     sw.add_argument("spec", help="sweep spec YAML (base config, axes, cells, paper figures)")
     sw.add_argument("--out", metavar="DIR", help="sweep directory (default: sweeps/<spec name>)")

@@ -3,7 +3,8 @@
 ``fidelity`` (default): :func:`optoenc.bench.pipeline.run`, tables, outcome
 checks, CSV and Pareto plot; ``converge``: the convergence study
 (:mod:`optoenc.bench.converge`); ``speed``: the interleaved step timing
-(:mod:`optoenc.bench.speed`); ``auto``: the cheapest measured setting;
+(:mod:`optoenc.bench.speed`); ``steps``: sweep cells' training steps with and without
+support regions (:mod:`optoenc.bench.steps`); ``auto``: the cheapest measured setting;
 ``optics``: the PSF micro-benchmark. Every report starts and ends with the
 machine's load average (the machine may be shared).
 """
@@ -108,6 +109,19 @@ def main(args) -> int:
         print(load_line("end"))
         if out is not None:
             print(precision.write_csv(rows, out / "precision.csv"))
+        return 0
+    if args.what == "steps":
+        from . import steps
+
+        if not args.spec:
+            raise ConfigError("--spec", None, "required by `optoenc bench steps` (a sweep spec, e.g. examples/paper/table3.yaml)")
+        print(load_line("start"))
+        with bar:
+            rows = steps.compare(args.spec, args.only, repeats=args.repeats, threads=threads[0], progress=progress)
+        if args.only and not rows:
+            raise ConfigError("--only", ",".join(args.only), "matches no cell of the spec")
+        print(steps.format_table(rows))
+        print(load_line("end"))
         return 0
     if args.what == "speed":
         from . import speed

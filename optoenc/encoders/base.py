@@ -39,6 +39,9 @@ _HARD_MAX_OPERATOR_ENTRIES = 2**28
 _DIRECT_CHUNK_SAMPLES = 2**26
 #: Scene geometries whose correlation tensors are kept (oldest dropped first).
 _MAX_GEOMETRIES = 4
+#: :meth:`OpticalEncoder.support_region` builds the operator of the scenes' support when that costs less than
+#: this fraction of the whole operator's multiply-adds (a margin for the slicing copies).
+_REGION_GAIN = 0.8
 
 
 @dataclass
@@ -116,6 +119,9 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
     #: Measured per-preset knob values for this encoder (e.g. a grid that
     #: avoids moire with its mask's pitch), over the shared preset table.
     fidelity_presets: ClassVar[dict[str, dict]] = {}
+    #: :meth:`measure` builds the operator of the batch's nonzero pixels only, where cheaper
+    #: (:meth:`support_region`; exact); False: always the whole scene's.
+    support_regions: bool = True
 
     def __init__(
         self,
@@ -289,15 +295,27 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
             self._op_cache[key] = (ry.to(device, self.operator_dtype), rx.to(device, self.operator_dtype))
         return self._op_cache[key]
 
-    def operator(self, scene_shape: tuple[int, int], height: float | None = None) -> torch.Tensor:
+    def operator(self, scene_shape: tuple[int, int], height: float | None = None,
+                 region: tuple[int, int, int, int] | None = None) -> torch.Tensor:
         """The ``(C, a, b, h, w)`` matrix from scene pixels to embedding pixels (noise-free).
 
         Exact for a piecewise-constant scene: it equals place -> convolve ->
         integrate on the simulation grid (see :mod:`optoenc.encoders.imaging`).
         Built and held in ``self.operator_dtype`` (``fidelity.operator_dtype``).
+
+        Args:
+            region: ``(r0, r1, c0, c1)``: only the columns of scene pixels
+                ``[r0, r1) x [c0, c1)`` of the ``scene_shape`` scene, a
+                ``(C, a, b, r1 - r0, c1 - c0)`` operator (not cached), equal
+                to ``operator(scene_shape)[..., r0:r1, c0:c1]`` for a fraction
+                of its cost. None: the whole scene (cached until a parameter
+                changes).
         """
         psf = self.psf()
         ry, rx = self._correlations(tuple(scene_shape), self.object_height_px(height), psf.device)
+        if region is not None:
+            r0, r1, c0, c1 = region
+            return imaging.scene_operator(psf.to(self.operator_dtype), ry[:, r0:r1], rx[:, c0:c1])
         key = ("op", tuple(scene_shape), height, self._state_key())
         cached = self._op_cache.get("op")
         if cached is not None and cached[0] == key:
@@ -305,6 +323,45 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         op = imaging.scene_operator(psf.to(self.operator_dtype), ry, rx)
         self._op_cache["op"] = (key, op)
         return op
+
+    def support_region(self, scene: torch.Tensor, height: float | None = None) -> tuple[int, int, int, int] | None:
+        """The region :meth:`measure` builds its operator for: the batch's nonzero pixels, or None (all).
+
+        Zero pixels contribute nothing, so the operator restricted to the
+        bounding box of the pixels that are nonzero in any scene of the batch
+        gives the same embeddings (and gradients) as the whole operator. It is
+        used where it costs fewer multiply-adds than the whole one: building
+        ``(a, h, Hp)`` correlations into a PSF costs ``C a h Hp Wp + C a b h w Wp``
+        and applying it ``B C a b h w``; the whole operator is free to build
+        while it is cached (a fixed PSF), never while a learned PSF changes every
+        step. On an augmentation canvas (the field of view, ~20 times a digit)
+        a rotated or rescaled digit covers a few percent of the pixels.
+        :attr:`support_regions` False: always None (the reference of ``optoenc bench cells``).
+        """
+        if not self.support_regions:
+            return None
+        h, w = scene.shape[-2:]
+        flat = scene.detach().flatten(0, -3)
+        on = (flat.amax(0) > 0) | (flat.amin(0) < 0)  # (h, w); two reductions: 7x cheaper than ne().any()
+        rows, cols = on.any(1).nonzero(), on.any(0).nonzero()
+        if len(rows) == 0:
+            return (0, 1, 0, 1)  # all dark: any single pixel gives the zero embedding
+        r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+        return self._cheaper_region(len(scene), (h, w), height, (r0, r1, c0, c1))
+
+    def _cheaper_region(self, batch: int, shape: tuple[int, int], height, region) -> tuple[int, int, int, int] | None:
+        """``region`` where its operator costs fewer multiply-adds than the whole scene's, else None."""
+        (h, w), (r0, r1, c0, c1) = shape, region
+        if (r1 - r0, c1 - c0) == (h, w):
+            return None
+        C, (a, b), (Hp, Wp) = self.channels, self.geometry.embedding, self.geometry.grid
+        build = lambda n, m: C * a * n * Hp * Wp + C * a * b * n * m * Wp  # noqa: E731
+        apply = lambda n, m: batch * C * a * b * n * m  # noqa: E731
+        cached = self._op_cache.get("op")
+        whole_cached = cached is not None and cached[0] == ("op", (h, w), height, self._state_key())
+        whole = (0 if whole_cached else build(h, w)) + apply(h, w)
+        part = build(r1 - r0, c1 - c0) + apply(r1 - r0, c1 - c0)
+        return (r0, r1, c0, c1) if part < _REGION_GAIN * whole else None
 
     def _padded_samples(self) -> int:
         """Complex samples per image and channel of the fine-grid path's zero-padded convolution (about)."""
@@ -350,21 +407,54 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
             DataError: NaN or infinite pixels. ConfigError: a bad shape or ``height``.
         """
         scene = _as_intensity(scene)
-        if height is not None:
-            if isinstance(height, bool) or not isinstance(height, (int, float)) or not math.isfinite(height) or height <= 0:
-                raise ConfigError("height", height, "must be a finite number > 0 m (the scene's physical height)")
-            self._check_object_size(height)
+        self._check_height(height)
         if method == "auto":
             method = self.auto_method(len(scene), tuple(scene.shape[-2:]))
         with torch.autocast(scene.device.type, enabled=False):  # the optics keep their own precisions
             out = self._measure(scene, height, method)
         return out.to(scene.dtype)
 
+    def _check_height(self, height) -> None:
+        if height is not None:
+            if isinstance(height, bool) or not isinstance(height, (int, float)) or not math.isfinite(height) or height <= 0:
+                raise ConfigError("height", height, "must be a finite number > 0 m (the scene's physical height)")
+            self._check_object_size(height)
+
+    def measure_window(self, windows: torch.Tensor, corner: tuple[int, int], scene_shape: tuple[int, int],
+                       height: float | None = None) -> torch.Tensor:
+        """Noise-free embeddings of ``scene_shape`` scenes that are zero outside one window, given its pixels.
+
+        ``windows`` ``(B, C, h, w)`` are the scenes' pixels ``[r0, r0 + h) x [c0, c0 + w)``, ``corner =
+        (r0, c0)``; every other pixel is zero. The same as :meth:`measure` of the whole scenes, without
+        building them: the operator of the window alone where that is cheaper (:meth:`support_region`).
+        """
+        r0, c0 = (int(v) for v in corner)
+        h, w = windows.shape[-2:]
+        H, W = (int(v) for v in scene_shape)
+        if r0 < 0 or c0 < 0 or r0 + h > H or c0 + w > W:
+            raise ConfigError("window", (r0, c0, h, w), f"must lie within the {H} x {W} scene")
+        region = (r0, r0 + h, c0, c0 + w)
+        x = _as_intensity(windows)
+        self._check_height(height)
+        if self.support_regions and self.auto_method(len(x), (H, W)) == "operator":
+            region = self._cheaper_region(len(x), (H, W), height, region) or (0, H, 0, W)
+            if region == (r0, r0 + h, c0, c0 + w):
+                with torch.autocast(x.device.type, enabled=False):
+                    op = self.operator((H, W), height, region)
+                    out = imaging.apply_operator(op, x.to(self.optics_dtype).to(op.dtype)).to(self.optics_dtype)
+                return out.to(x.dtype)
+        full = torch.nn.functional.pad(x, (c0, W - c0 - w, r0, H - r0 - h))
+        return self.measure(full, height)
+
     def _measure(self, scene: torch.Tensor, height: float | None, method: str) -> torch.Tensor:
         a, b = self.geometry.embedding
         x = scene.to(self.optics_dtype)
         if method == "operator":
-            op = self.operator(scene.shape[-2:], height)
+            region = self.support_region(x, height)
+            op = self.operator(scene.shape[-2:], height, region)
+            if region is not None:
+                r0, r1, c0, c1 = region
+                x = x[..., r0:r1, c0:c1]
             out = imaging.apply_operator(op, x.to(op.dtype)).to(self.optics_dtype)
         elif method == "direct":
             s = self.subcells  # the same sub-pixel scene geometry as the operator

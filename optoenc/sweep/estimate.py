@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import time
+from types import SimpleNamespace
 from typing import Any
 
 import torch
@@ -41,15 +42,18 @@ def _sizes(run, cache: dict) -> tuple[int, int, int]:
     return cache[key]
 
 
-def _measure(run, scene_shape) -> dict[str, float]:
-    """Seconds per training step and per encoded example, timed on random data of the cell's shapes.
+def training_step(run, scene_shape, scenes: torch.Tensor | None = None):
+    """``step()`` runs one optimiser step of ``run``'s cell; also returned: ``module``, ``augs``, ``canvas``,
+    ``precomputed`` and ``store_s``, as attributes of a namespace.
 
     The step is the one training takes (:func:`optoenc.training.run.build`'s rules): precomputed
-    embeddings for a fixed encoder, else scenes through the augmentations' canvas and the encoder.
+    embeddings for a fixed encoder, else scenes through the augmentations' canvas and the encoder, on
+    ``scenes`` (a batch; default random pixels of ``scene_shape``) with random labels. ``store_s``: seconds
+    per example of the one-off transform of a stored dataset (``trainer.augment_draw=once``), else 0.
     """
     from ..config import build_encoder
     from ..plugins import get_registry
-    from ..training.augment_once import draws, encode_transformed, store_transformed
+    from ..training.augment_once import draws, store_transformed
     from ..training.module import EncoderClassifier
     from ..training.run import canvas_for, precomputes, stores_transformed
 
@@ -64,20 +68,36 @@ def _measure(run, scene_shape) -> dict[str, float]:
                                stored_canvases=stored)
     opt = module.configure_optimizers()
     bs = run.trainer.batch_size
-    x = torch.rand(bs, *enc.output_shape) if pre else torch.rand(bs, *scene_shape)
-    y = torch.randint(0, 10, (bs,))
+    if pre:
+        x = torch.rand(bs, *enc.output_shape)
+    else:
+        x = torch.rand(bs, *scene_shape) if scenes is None else scenes[:bs].to(torch.float32)
+    y = torch.randint(0, 10, (len(x),))
     extra, store_s = None, 0.0
     if stored:  # the one-off transform of the dataset, then steps on its stored windows
         t0 = time.perf_counter()
-        x, extra = store_transformed(augs, canvas, x, draws(augs, bs, 0, "train"), bs, enc.scene_config.object_height)
-        store_s = (time.perf_counter() - t0) / bs
-    times = []
-    for _ in range(_WARM + _TIMED):
-        t0 = time.perf_counter()
+        x, extra = store_transformed(augs, canvas, x, draws(augs, len(x), 0, "train"), bs, enc.scene_config.object_height)
+        store_s = (time.perf_counter() - t0) / len(x)
+
+    def step() -> None:
         opt.zero_grad()
         loss = torch.nn.functional.cross_entropy(module(x, augment=True, draws=extra), y)
         loss.backward()
         opt.step()
+
+    return SimpleNamespace(step=step, module=module, augs=augs, canvas=canvas, precomputed=pre, store_s=store_s)
+
+
+def _measure(run, scene_shape) -> dict[str, float]:
+    """Seconds per training step and per encoded example, timed on random data of the cell's shapes."""
+    from ..training.augment_once import draws, encode_transformed
+
+    cell = training_step(run, scene_shape)
+    enc, augs, canvas, pre, store_s = cell.module.encoder, cell.augs, cell.canvas, cell.precomputed, cell.store_s
+    times = []
+    for _ in range(_WARM + _TIMED):
+        t0 = time.perf_counter()
+        cell.step()
         times.append(time.perf_counter() - t0)
     step = min(times[_WARM:])  # the least disturbed step: other processes only ever add time
     per_example = 0.0

@@ -73,8 +73,19 @@ def transformed_embedding(encoder, comp: Compose, canvas, scenes: torch.Tensor,
 
 
 def stored_embedding(encoder, canvas, windows: torch.Tensor, offsets: torch.Tensor) -> torch.Tensor:
-    """Noise-free embeddings of stored transformed scenes (:func:`store_transformed`)."""
-    return encoder.measure(paste(windows, offsets, canvas.shape), height=canvas.height)
+    """Noise-free embeddings of stored transformed scenes (:func:`store_transformed`).
+
+    The batch's windows are pasted on the part of the canvas that holds them all (the bounding box of
+    their offsets), which the encoder measures as a window of the whole canvas
+    (:meth:`~optoenc.encoders.base.OpticalEncoder.measure_window`): a rotated or rescaled digit stays near
+    the canvas centre, so that part is a few percent of the canvas.
+    """
+    h, w = windows.shape[-2:]
+    offsets = offsets.to(windows.device, torch.long)
+    lo = offsets.amin(0)
+    hi = offsets.amax(0) + torch.tensor([h, w], device=offsets.device)
+    part = paste(windows, offsets - lo, (int(hi[0] - lo[0]), int(hi[1] - lo[1])))
+    return encoder.measure_window(part, (int(lo[0]), int(lo[1])), canvas.shape, height=canvas.height)
 
 
 @torch.no_grad()

@@ -1,0 +1,95 @@
+"""The operator of a batch's nonzero pixels (:meth:`OpticalEncoder.support_region`): the same embeddings and
+gradients as the whole scene's operator, built where it is cheaper, and only there."""
+
+from __future__ import annotations
+
+import warnings
+
+import pytest
+import torch
+
+from optoenc.encoders.slm import FixedSLM, LearnedSLM
+
+
+def _encoder(cls, dtype="float32"):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the small grid's sampling warning
+        return cls(None, fidelity={"grid": (48, 64), "dtype": dtype}, sensor={"embedding": (6, 8)})
+
+
+def _canvases(batch=5, shape=(40, 52), box=(7, 21, 30, 47), seed=0):
+    """Random scenes nonzero only inside ``box = (r0, r1, c0, c1)`` of a larger canvas."""
+    g = torch.Generator().manual_seed(seed)
+    x = torch.zeros(batch, 1, *shape, dtype=torch.float64)
+    r0, r1, c0, c1 = box
+    x[..., r0:r1, c0:c1] = torch.rand(batch, 1, r1 - r0, c1 - c0, generator=g, dtype=torch.float64)
+    return x
+
+
+def test_region_is_the_support_bounding_box_across_the_batch():
+    enc = _encoder(LearnedSLM)
+    x = _canvases()
+    x[0, 0, 7, 30] = x[1, 0, 20, 46] = 0.5  # the box's corners, set in different examples
+    assert enc.support_region(x, 0.05) == (7, 21, 30, 47)
+    assert enc.support_region(torch.zeros_like(x), 0.05) == (0, 1, 0, 1)  # dark: one pixel suffices
+    full = torch.ones(2, 1, 40, 52, dtype=torch.float64)
+    assert enc.support_region(full, 0.05) is None  # nothing to cut
+
+
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+def test_support_operator_gives_the_whole_operators_embeddings_and_gradients(dtype):
+    """Zero pixels contribute nothing: cutting them away changes only the summation order.
+
+    float64 optics: 1e-12 relative is rounding of sums of ~1e3 terms; float32: 1e-5 relative, a few hundred
+    ulps of the largest embedding pixel (1e-4 for the gradient, summed over the 240 embedding pixels too).
+    """
+    x = _canvases().to(getattr(torch, dtype))
+    results = []
+    for cut in (True, False):
+        enc = _encoder(LearnedSLM, dtype)
+        enc.support_regions = cut
+        emb = enc.measure(x, height=0.05)
+        (emb * torch.linspace(0.5, 1.5, emb.numel(), dtype=emb.dtype).reshape(emb.shape)).sum().backward()
+        results.append((emb.detach(), enc.logits.grad.clone()))
+    tol = dict(rtol=1e-12, atol=1e-15) if dtype == "float64" else dict(rtol=1e-5, atol=1e-7 * float(results[1][0].abs().max()))
+    torch.testing.assert_close(results[0][0], results[1][0], **tol)
+    gtol = tol if dtype == "float64" else dict(rtol=1e-4, atol=1e-5 * float(results[1][1].abs().max()))
+    torch.testing.assert_close(results[0][1], results[1][1], **gtol)
+    assert results[1][0].abs().max() > 0  # the window's light reaches the sensor: not a comparison of zeros
+
+
+def test_region_is_used_only_where_cheaper():
+    """A learned PSF rebuilds the operator anyway: the small window wins. A fixed encoder's cached whole
+    operator costs nothing to build, so a few scenes filling most of it keep it, and so does a small window
+    seen by a few scenes (building its operator costs more than applying the cached one), but not by 200."""
+    learned = _encoder(LearnedSLM)
+    small = _canvases(batch=2)
+    assert learned.support_region(small, 0.05) == (7, 21, 30, 47)
+    fixed = _encoder(FixedSLM)
+    fixed.eval()
+    wide = _canvases(batch=2, box=(1, 39, 1, 51))
+    with torch.no_grad():
+        fixed.measure(torch.ones(1, 1, 40, 52, dtype=torch.float64), height=0.05)  # caches the whole operator
+        assert fixed.support_region(wide, 0.05) is None
+        assert fixed.support_region(small, 0.05) is None
+        assert fixed.support_region(_canvases(batch=200), 0.05) == (7, 21, 30, 47)
+
+
+@pytest.mark.parametrize("cut", [True, False])
+def test_measure_window_is_measure_of_the_whole_scene(cut):
+    """A window's pixels at a corner of an otherwise dark scene: the same embeddings as measuring that scene
+    (float64 optics: 1e-12 relative, summation order only), along the window's own operator or the whole."""
+    enc = _encoder(LearnedSLM, "float64")
+    enc.support_regions = cut
+    x = _canvases(batch=200)
+    window = x[..., 7:21, 30:47]
+    torch.testing.assert_close(enc.measure_window(window, (7, 30), (40, 52), 0.05), enc.measure(x, 0.05),
+                               rtol=1e-12, atol=1e-15)
+
+
+def test_measure_window_outside_the_scene_is_one_clear_error():
+    from optoenc.errors import ConfigError
+
+    enc = _encoder(LearnedSLM)
+    with pytest.raises(ConfigError, match=r"^window = \(30, 40, 14, 17\): must lie within the 40 x 52 scene"):
+        enc.measure_window(torch.rand(2, 1, 14, 17), (30, 40), (40, 52), 0.05)
