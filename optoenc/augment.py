@@ -179,6 +179,20 @@ class Augmentation(Documented, nn.Module):
         """Transform the canvas of objects in ``state`` with the per-example uniforms ``u`` ``(B, n_random)``."""
         raise NotImplementedError
 
+    def reach(self, half: torch.Tensor) -> torch.Tensor | None:
+        """Where this transform's input and output can be nonzero, given where its input can.
+
+        Args:
+            half: ``(B, 2)`` half-extents (rows, cols; canvas pixels) of a box about each object's centre
+                holding everything nonzero of the input.
+
+        Returns:
+            ``(B, 2)`` half-extents of a box about the same centre holding the input and the output; None
+            (the default): anywhere on the canvas. :class:`Compose` transforms only the part of the canvas
+            these boxes cover (a digit is a few percent of the field of view).
+        """
+        return None
+
     def draw(self, batch: int, device=None) -> torch.Tensor:
         """``(batch, n_random)`` float64 uniforms from torch's global RNG."""
         return torch.rand(batch, self.n_random, device=device).double()
@@ -213,6 +227,11 @@ class SeparableAugmentation(Augmentation):
         return _resample_axis(_resample_axis(canvas, -2, t0, s0), -1, t1, s1), new
 
 
+#: Pixels added on every side of the objects' reach in :meth:`Compose.place_window`: a bilinear warp reads
+#: the pixels next to a sample (1), and pixel centres sit half a pixel inside their cells (1).
+_WINDOW_MARGIN = 2
+
+
 class Compose(nn.Module):
     """Several augmentations applied in order, tracking the object between them.
 
@@ -245,7 +264,28 @@ class Compose(nn.Module):
         Leading separable transforms (shift, rescale) are folded into the
         placement: resampling the canvas ``P x Q^T`` along its rows is
         ``(R P) x Q^T`` (linearity), and ``R P`` resamples only the
-        ``rows x h`` placement matrix, not every canvas of the batch.
+        ``rows x h`` placement matrix, not every canvas of the batch. The
+        rest transform only the part of the canvas that can be nonzero
+        (:meth:`place_window`).
+        """
+        window, (r0, c0) = self.place_window(scenes, geometry, object_height, u)
+        if tuple(window.shape[-2:]) == tuple(geometry.shape):
+            return window
+        h, w = window.shape[-2:]
+        out = window.new_zeros(*window.shape[:-2], *geometry.shape)
+        out[..., r0 : r0 + h, c0 : c0 + w] = window
+        return out
+
+    def place_window(
+        self, scenes: torch.Tensor, geometry: CanvasGeometry, object_height: Any = None, u: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, tuple[int, int]]:
+        """:meth:`place`'s canvases, only the part that can be nonzero: ``(window (B, C, h, w), (row, col))``.
+
+        The window is the bounding box, over the batch, of each object's reach
+        (:meth:`Augmentation.reach`, plus :data:`_WINDOW_MARGIN` pixels for the
+        bilinear warps); the canvas is zero outside it, and the warps there
+        read and write zeros only. ``(row, col)``: its top-left pixel on the
+        canvas. The whole canvas where a transform may reach anywhere.
         """
         B = scenes.shape[0]
         state = ObjectState.initial(geometry, B, object_height, scenes.device)
@@ -258,8 +298,29 @@ class Compose(nn.Module):
             ((t0, s0), (t1, s1)), state = aug.resampling(geometry, state, u[:, k : k + aug.n_random])
             p, q = _resample_axis(p, -2, t0, s0), _resample_axis(q, -2, t1, s1)
             i, k = i + 1, k + aug.n_random
-        canvas = p[:, 0].to(scenes.dtype)[:, None] @ scenes @ q[:, 0].to(scenes.dtype).transpose(-1, -2)[:, None]
-        return self._apply(canvas, geometry, state, u, i, k)
+        (r0, r1), (c0, c1) = self._window(geometry, state, list(self.augmentations)[i:])
+        py = p[:, 0, r0:r1].to(scenes.dtype)[:, None]
+        qx = q[:, 0, c0:c1].to(scenes.dtype).transpose(-1, -2)[:, None]
+        corner = torch.tensor([r0, c0], dtype=state.center.dtype, device=state.center.device)
+        local = ObjectState(state.center - corner, state.box, state.height)
+        return self._apply(py @ scenes @ qx, geometry, local, u, i, k), (r0, c0)
+
+    @staticmethod
+    def _window(geometry: CanvasGeometry, state: ObjectState, rest) -> tuple[tuple[int, int], tuple[int, int]]:
+        """``((r0, r1), (c0, c1))``: the canvas rows and columns the transforms ``rest`` can make nonzero."""
+        rows, cols = geometry.shape
+        half = state.box / 2
+        for aug in rest:
+            half = aug.reach(half)
+            if half is None:
+                return (0, rows), (0, cols)
+        lo = (state.center - half - _WINDOW_MARGIN).floor().amin(0)
+        hi = (state.center + half + _WINDOW_MARGIN).ceil().amax(0)
+        r0, c0 = (max(0, int(v)) for v in lo)
+        r1, c1 = min(rows, int(hi[0])), min(cols, int(hi[1]))
+        if r1 <= r0 or c1 <= c0:  # every object off the canvas: one dark pixel
+            return (0, 1), (0, 1)
+        return (r0, r1), (c0, c1)
 
     def _draws(self, batch: int, device, u: torch.Tensor | None) -> torch.Tensor:
         u = self.draw(batch, device) if u is None else u.to(device, torch.float64)
@@ -335,6 +396,10 @@ class Rotate(Augmentation):
     Config = RotateConfig
     n_random = 1
 
+    def reach(self, half):
+        # A box of half-extents (a, b) turned about its centre stays in the disc of radius hypot(a, b).
+        return half.norm(dim=1, keepdim=True).expand(-1, 2)
+
     def apply(self, canvas, geometry, state, u):
         B, dt = canvas.shape[0], canvas.dtype
         angle = self.config.max_angle * (2 * u[:, 0] - 1)
@@ -370,6 +435,10 @@ class Perspective(Augmentation):
     name = "perspective"
     Config = PerspectiveConfig
     n_random = 9  # on/off, then 4 corners x (x, y)
+
+    def reach(self, half):
+        # The object's box: its corners move inward, so the box maps into itself. The field's: anywhere.
+        return half if self.config.about == "object" else None
 
     def apply(self, canvas, geometry, state, u):
         B, dt, dev = canvas.shape[0], canvas.dtype, canvas.device

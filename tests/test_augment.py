@@ -226,3 +226,29 @@ def test_perspective_about_the_field_moves_and_shrinks_the_object():
     a = Perspective().apply(ct, tight, ObjectState.initial(tight, 4), ut)[0]
     b = Perspective({"about": "field"}).apply(ct, tight, ObjectState.initial(tight, 4), ut)[0]
     torch.testing.assert_close(a, b, atol=1e-5, rtol=1e-5)
+
+
+@pytest.mark.parametrize("names", [["rotate"], ["perspective"], ["rescale", "rotate"], ["rotate", "perspective"]])
+def test_place_window_holds_everything_the_transforms_make_nonzero(names):
+    # Rotate and perspective (about the object) transform only a window around the objects: the whole canvas,
+    # transformed, is exactly zero outside it, and the window is the canvas's part (kornia's float32 bilinear
+    # warps at shifted coordinates: the 3e-5 of the test above).
+    augs = [next(c() for c in BUILTIN if c.name == n) for n in names]
+    comp = Compose(augs)
+    g = torch.Generator().manual_seed(5)
+    scenes = _digits(8, seed=5)
+    u = torch.rand(8, comp.n_random, generator=g, dtype=torch.float64)
+    window, (r0, c0) = comp.place_window(scenes, GEOM, 0.12, u)
+    h, w = window.shape[-2:]
+    assert h * w < 0.3 * GEOM.shape[0] * GEOM.shape[1]  # a digit's reach, not the field of view
+    whole = comp(to_canvas(scenes, GEOM), GEOM, 0.12, u)
+    outside = whole.clone()
+    outside[..., r0 : r0 + h, c0 : c0 + w] = 0
+    assert float(outside.abs().max()) == 0.0
+    torch.testing.assert_close(window, whole[..., r0 : r0 + h, c0 : c0 + w], rtol=0, atol=3e-5)
+
+
+def test_place_window_is_the_whole_canvas_where_a_transform_reaches_anywhere():
+    comp = Compose([Shift(), Perspective({"about": "field"})])
+    window, corner = comp.place_window(_digits(2), GEOM, 0.12, torch.rand(2, comp.n_random, dtype=torch.float64))
+    assert tuple(window.shape[-2:]) == tuple(GEOM.shape) and corner == (0, 0)

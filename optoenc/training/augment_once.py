@@ -68,8 +68,13 @@ def encode_transformed(encoder, augs, canvas, images: torch.Tensor, u: torch.Ten
 
 def transformed_embedding(encoder, comp: Compose, canvas, scenes: torch.Tensor,
                           u: torch.Tensor | None = None) -> torch.Tensor:
-    """Noise-free embeddings of ``scenes`` placed on ``canvas`` and transformed by ``comp`` (``u``: draws)."""
-    return encoder.measure(comp.place(scenes, canvas, encoder.scene_config.object_height, u), height=canvas.height)
+    """Noise-free embeddings of ``scenes`` placed on ``canvas`` and transformed by ``comp`` (``u``: draws).
+
+    Only the part of the canvas the objects can reach is transformed and measured
+    (:meth:`~optoenc.augment.Compose.place_window`, :meth:`~optoenc.encoders.base.OpticalEncoder.measure_window`).
+    """
+    window, corner = comp.place_window(scenes, canvas, encoder.scene_config.object_height, u)
+    return encoder.measure_window(window, corner, canvas.shape, height=canvas.height)
 
 
 def stored_embedding(encoder, canvas, windows: torch.Tensor, offsets: torch.Tensor) -> torch.Tensor:
