@@ -125,3 +125,33 @@ def test_learned_slm_beats_fixed_slm_with_the_same_budget(tmp_path):
     for enc in ("learned_slm", "fixed_slm"):
         acc[enc] = fit(compose(overrides=common, names={"encoder": enc, "decoder": "fcnn"}), tmp_path / enc)["test_acc"]
     assert acc["learned_slm"] > acc["fixed_slm"], acc
+
+
+@pytest.mark.filterwarnings("ignore")  # the small grid's sampling warning; Lightning's few-batches notice
+def test_epoch_training_loss_is_the_batch_weighted_mean_of_the_step_losses(tmp_path):
+    """The training loss and accuracy are accumulated by the module and logged once an epoch (not twice a step):
+    the epoch's loss is the batch-size-weighted mean of every step's loss (a ragged last batch included), its
+    accuracy the fraction right over the epoch's examples, and every step loss is logged at log_every_n_steps=1.
+    Tolerance 1e-6: float32 losses of order one, summed over 3 batches."""
+    import csv
+
+    import lightning as L
+    from lightning.pytorch.loggers import CSVLogger
+
+    from optoenc.config import compose
+    from optoenc.training.run import build
+
+    run = compose(overrides=["dataset.train_size=450", "dataset.val_size=100", "dataset.test_size=100",
+                             "sensor.embedding=[6,8]", "fidelity.grid=[48,64]", "trainer.batch_size=200"],
+                  names={"encoder": "lens", "decoder": "logistic"})
+    parts = build(run)
+    trainer = L.Trainer(max_epochs=1, log_every_n_steps=1, logger=CSVLogger(tmp_path), enable_checkpointing=False,
+                        enable_progress_bar=False, enable_model_summary=False, accelerator="cpu", num_sanity_val_steps=0)
+    trainer.fit(parts.module, parts.loaders["train"])
+    rows = list(csv.DictReader(open(next(tmp_path.rglob("metrics.csv")))))
+    steps = [float(r["train_loss_step"]) for r in rows if r.get("train_loss_step")]
+    (epoch,) = [float(r["train_loss_epoch"]) for r in rows if r.get("train_loss_epoch")]
+    assert len(steps) == 3  # 200 + 200 + 50 examples
+    assert epoch == pytest.approx((200 * steps[0] + 200 * steps[1] + 50 * steps[2]) / 450, rel=1e-6)
+    (acc,) = [float(r["train_acc"]) for r in rows if r.get("train_acc")]
+    assert 0 < acc < 1 and acc * 450 == pytest.approx(round(acc * 450), abs=1e-3)  # a count of right answers

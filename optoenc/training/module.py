@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Sequence
 
 import lightning as L
@@ -139,6 +140,10 @@ class EncoderClassifier(L.LightningModule):
         self._train_totals = (total + loss * n, count + n)
         trainer = self._trainer
         if trainer is None:  # a step outside a Trainer: nothing to log to
+            return
+        if not math.isfinite(trainer.num_training_batches):  # an unsized loader: no last batch to wait for
+            self.log("train_loss", loss, on_step=True, on_epoch=True, prog_bar=True, batch_size=n)
+            self.log("train_acc", self.train_acc, on_step=False, on_epoch=True, prog_bar=True, batch_size=n)
             return
         if (batch_idx + 1) % max(1, trainer.log_every_n_steps) == 0:
             self.log("train_loss_step", loss, on_step=True, on_epoch=False, prog_bar=True, batch_size=n)
