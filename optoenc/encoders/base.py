@@ -336,7 +336,7 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         while it is cached (a fixed PSF), never while a learned PSF changes every
         step. On an augmentation canvas (the field of view, ~20 times a digit)
         a rotated or rescaled digit covers a few percent of the pixels.
-        :attr:`support_regions` False: always None (the reference of ``optoenc bench cells``).
+        :attr:`support_regions` False: always None (the reference of ``optoenc bench steps``).
         """
         if not self.support_regions:
             return None
@@ -436,13 +436,12 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         region = (r0, r0 + h, c0, c0 + w)
         x = _as_intensity(windows)
         self._check_height(height)
-        if self.support_regions and self.auto_method(len(x), (H, W)) == "operator":
-            region = self._cheaper_region(len(x), (H, W), height, region) or (0, H, 0, W)
-            if region == (r0, r0 + h, c0, c0 + w):
-                with torch.autocast(x.device.type, enabled=False):
-                    op = self.operator((H, W), height, region)
-                    out = imaging.apply_operator(op, x.to(self.optics_dtype).to(op.dtype)).to(self.optics_dtype)
-                return out.to(x.dtype)
+        cut = self.support_regions and self.auto_method(len(x), (H, W)) == "operator"
+        if cut and self._cheaper_region(len(x), (H, W), height, region) == region:
+            with torch.autocast(x.device.type, enabled=False):  # the optics keep their own precisions
+                op = self.operator((H, W), height, region)
+                out = imaging.apply_operator(op, x.to(self.optics_dtype).to(op.dtype)).to(self.optics_dtype)
+            return out.to(x.dtype)
         full = torch.nn.functional.pad(x, (c0, W - c0 - w, r0, H - r0 - h))
         return self.measure(full, height)
 
