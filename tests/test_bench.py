@@ -264,3 +264,30 @@ def test_run_measures_the_given_dataset_not_mnist(coarse_truth):
     assert [r["kind"] for r in rows] == ["truth", "preset"] and 0 <= rows[1]["error"] < 1
     data = pipeline._data(4, 6, 8, Splits(split(6), split(2), split(4), 3))
     assert data.num_classes == 3 and data.digits.shape == (4, 1, 16, 20)
+
+
+def test_cli_bench_steps_bad_input(capsys, tmp_path):
+    assert main(["bench", "steps"]) == 2
+    spec = tmp_path / "s.yaml"
+    spec.write_text("name: s\nbase: {}\naxes: {encoder: [learned_slm]}\n")
+    assert main(["bench", "steps", "--spec", str(spec), "--only", "encoder=nothing*"]) == 2
+    err = capsys.readouterr().err
+    assert "--spec = None: required by `optoenc bench steps`" in err and "--only = 'encoder=nothing*': matches no cell" in err
+
+
+@pytest.mark.filterwarnings("ignore")  # the 48 x 64 grid's sampling warning
+def test_bench_steps_times_both_settings_of_a_cell(tmp_path):
+    # A learned cell under rotate on a small grid: both columns are measured steps, and the epoch figure is the
+    # step times the epoch's batches. No speed is asserted (the machine may be shared): that is the command's job.
+    from optoenc.bench import steps
+
+    spec = tmp_path / "s.yaml"
+    spec.write_text(
+        "name: s\nbase: {dataset: {train_size: 400, val_size: 100, test_size: 200}, sensor: {embedding: [6, 8]},"
+        " fidelity: {grid: [48, 64]}, trainer: {batch_size: 100}}\n"
+        "axes: {encoder: [learned_slm], decoder: [logistic], augment: [rotate]}\n")
+    (row,) = steps.compare(spec, repeats=1, steps=1)
+    assert row["whole_s"] > 0 and row["support_s"] > 0 and row["epoch_steps"] == 4
+    assert row["speedup"] == pytest.approx(row["whole_s"] / row["support_s"])
+    assert row["support_epoch_s"] == pytest.approx(4 * row["support_s"])
+    assert "| base | " in steps.format_table([row])  # one value per axis: the cell is the spec's base
