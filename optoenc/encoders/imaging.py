@@ -267,8 +267,14 @@ def scene_operator(psf: torch.Tensor, ry: torch.Tensor, rx: torch.Tensor) -> tor
         ``(C, a, b, h, w)`` operator ``A`` with
         ``embedding[c, a, b] = sum_pq A[c, a, b, p, q] scene[c, p, q]``.
     """
+    C, (a, h, _), (b, w, Wp) = psf.shape[0], ry.shape, rx.shape
     t = torch.einsum("phk,ckl->cphl", ry, psf)  # (C, a, h, Wp)
-    return torch.einsum("cphl,bql->cpbhq", t, rx)
+    # One matrix product (C a h, Wp) x (Wp, b w), then one transposing copy into the (C, a, b, h, w)
+    # layout apply_operator reads as a matrix. einsum's own plan for this contraction copied the
+    # operator twice more (forward and backward; 1.56x slower build + apply + gradient on Table 3's
+    # 24x32 canvas, one thread: docs/benchmarks.md, "Operator layout").
+    m = t.reshape(C * a * h, Wp) @ rx.reshape(b * w, Wp).T  # (C a h, b w)
+    return m.reshape(C, a, h, b, w).transpose(2, 3).contiguous()
 
 
 def apply_operator(op: torch.Tensor, scene: torch.Tensor) -> torch.Tensor:
@@ -276,10 +282,12 @@ def apply_operator(op: torch.Tensor, scene: torch.Tensor) -> torch.Tensor:
     C, a, b, h, w = op.shape
     flat = op.reshape(C, a * b, h * w)
     x = scene.reshape(scene.shape[0], scene.shape[1], h * w)
+    # Explicit products with the operator on the right, transposed: their gradient with respect to the
+    # operator comes out in the operator's own layout (einsum's transposed it, a copy of the whole operator).
     if x.shape[1] == 1:
-        out = torch.einsum("nk,cek->nce", x[:, 0], flat)
+        out = x[:, 0] @ flat.reshape(C * a * b, h * w).T
     elif x.shape[1] == C:
-        out = torch.einsum("nck,cek->nce", x, flat)
+        out = torch.bmm(x.transpose(0, 1), flat.transpose(1, 2)).transpose(0, 1)
     else:
         raise ConfigError("scene channels", x.shape[1], f"must be 1 or {C} (the PSF's channels)")
     return out.reshape(scene.shape[0], C, a, b)
