@@ -60,6 +60,7 @@ LAYERS: dict[str, int] = {
     # 7. runs and studies of runs
     "optoenc.training.run": 7,
     "optoenc.sweep": 7,
+    "optoenc.bench.steps": 7,
     "optoenc.privacy.report": 7,
     # 8. commands
     "optoenc.cli": 8,
