@@ -64,8 +64,9 @@ def test_operator_equals_fine_grid_pipeline(grid, psf_shape, scene, emb, height)
 @pytest.mark.parametrize("channels", [1, 2])
 def test_operator_gradient_with_respect_to_the_psf_is_the_fine_grid_pipelines(channels):
     # The operator path's PSF gradient (what trains a learned mask) against the fine-grid pipeline's, for
-    # one scene channel broadcast to the PSF's channels and one scene channel per PSF channel; exact maps in
-    # float64: rounding only.
+    # one scene channel broadcast to the PSF's channels and one scene channel per PSF channel. Both are exact
+    # maps in float64, so only rounding separates them: measured 1.1e-15 absolute on gradients up to 3.2;
+    # atol 1e-12 leaves 1000x for other BLAS orders, far below a layout error (entries of order 1).
     g = torch.Generator().manual_seed(2)
     grid, scene, emb, height = (32, 40), (5, 6), (4, 5), 12.0
     psf = torch.rand(2, *grid, generator=g, dtype=DT, requires_grad=True)

@@ -271,8 +271,8 @@ def scene_operator(psf: torch.Tensor, ry: torch.Tensor, rx: torch.Tensor) -> tor
     t = torch.einsum("phk,ckl->cphl", ry, psf)  # (C, a, h, Wp)
     # One matrix product (C a h, Wp) x (Wp, b w), then one transposing copy into the (C, a, b, h, w)
     # layout apply_operator reads as a matrix. einsum's own plan for this contraction copied the
-    # operator twice more (forward and backward; 1.56x slower build + apply + gradient on Table 3's
-    # 24x32 canvas, one thread: docs/benchmarks.md, "Operator layout").
+    # operator twice more (forward and backward; build + apply + gradient 1.35x slower in bfloat16 on
+    # Table 3's 24x32 canvas, one thread: docs/benchmarks.md, "Operator layout").
     m = t.reshape(C * a * h, Wp) @ rx.reshape(b * w, Wp).T  # (C a h, b w)
     return m.reshape(C, a, h, b, w).transpose(2, 3).contiguous()
 
@@ -285,7 +285,7 @@ def apply_operator(op: torch.Tensor, scene: torch.Tensor) -> torch.Tensor:
     # Explicit products with the operator on the right, transposed: their gradient with respect to the
     # operator comes out in the operator's own layout (einsum's transposed it, a copy of the whole operator).
     if x.shape[1] == 1:
-        out = x[:, 0] @ flat.reshape(C * a * b, h * w).T
+        out = x[:, 0] @ op.reshape(C * a * b, h * w).T
     elif x.shape[1] == C:
         out = torch.bmm(x.transpose(0, 1), flat.transpose(1, 2)).transpose(0, 1)
     else:
