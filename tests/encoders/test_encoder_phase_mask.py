@@ -11,6 +11,7 @@ import torch
 from optoenc import devices
 from optoenc.encoders.phase_mask import LearnedPhaseMask, PhaseMask, bilinear_matrix
 from optoenc.errors import ConfigError
+from optoenc.optics import SamplingWarning
 
 # Coarse test grids alias the spherical source wave; expected, and irrelevant to these checks.
 pytestmark = pytest.mark.filterwarnings("ignore::optoenc.optics.SamplingWarning")
@@ -85,3 +86,34 @@ def test_validation():
         LearnedPhaseMask({"refractive_index": 0.9})
     with pytest.raises(ConfigError, match=r"^encoder\.levels"):
         PhaseMask({"levels": 1})
+
+
+def _phase_steps(enc) -> float:
+    """Largest phase change between neighbouring field samples of the plate, at the shortest wavelength."""
+    lam = min(devices.WAVELENGTHS_RGB)
+    phase = 2 * math.pi * (enc.config.refractive_index - 1) * enc.surface().detach() / lam
+    return max(float(phase.diff(dim=0).abs().max()), float(phase.diff(dim=1).abs().max()))
+
+
+@pytest.mark.parametrize("preset", ["fast", "default"])
+def test_learned_plate_stays_sampled_whatever_it_learns(preset):
+    """The steepest learnable map (a node checkerboard at 0 / max_height) meets the bound and stays below pi.
+
+    Above pi per sample the grid aliases the plate and training can exploit it (the first learned plates,
+    15 um cells of up to 2 um, lost 10-43 points when re-simulated at the reference preset).
+    """
+    enc = LearnedPhaseMask(fidelity={"preset": preset, "dtype": "float64"})
+    m, n = enc.logits.shape
+    with torch.no_grad():
+        enc.logits.copy_(torch.where((torch.arange(m)[:, None] + torch.arange(n)) % 2 == 0, 40.0, -40.0))
+    # Attained exactly where two samples fall on one cell's ramp (measured: to 2e-14, float64 rounding).
+    assert _phase_steps(enc) == pytest.approx(enc.phase_step_bound(), rel=1e-9)
+    assert enc.phase_step_bound() < math.pi
+    with torch.no_grad():
+        enc.logits.normal_(0, 3)
+    assert _phase_steps(enc) <= enc.phase_step_bound() * (1 + 1e-9)
+
+
+def test_an_aliasing_learned_plate_warns_naming_the_settings():
+    with pytest.warns(SamplingWarning, match=r"encoder\.feature_size.*encoder\.max_height.*fidelity\.grid"):
+        LearnedPhaseMask({"feature_size": 15e-6, "max_height": 2e-6}, fidelity={"preset": "fast"})
