@@ -18,7 +18,7 @@ from .settings import Documented, Settings, setting
 __all__ = ["DecoderConfig", "Decoder", "Logistic", "FCNN", "EMBEDDING_NORMS"]
 
 #: Pre-decoder normalisations of the embedding.
-EMBEDDING_NORMS = ("auto", "none", "standardize", "batchnorm_relu")
+EMBEDDING_NORMS = ("auto", "none", "standardize", "batchnorm_relu", "batchnorm")
 
 
 @dataclass
@@ -29,7 +29,8 @@ class DecoderConfig(Settings):
         "auto",
         "normalisation of the embedding before the decoder: 'standardize' (scalar mean/std of the "
         "training embeddings, the paper's fixed-encoder protocol), 'batchnorm_relu' (the paper's learned-SLM "
-        "protocol), 'none'; 'auto' picks batchnorm_relu for learnable encoders, standardize otherwise",
+        "protocol), 'batchnorm' (per-pixel BatchNorm1d without the ReLU, which zeroes every below-average "
+        "reading), 'none'; 'auto' picks batchnorm_relu for learnable encoders, standardize otherwise",
         choices=EMBEDDING_NORMS,
     )
 
@@ -79,7 +80,12 @@ class Decoder(Documented, nn.Module):
         if norm == "auto":
             norm = "batchnorm_relu" if learnable_encoder else "standardize"
         self.norm_kind = norm
-        self.norm = nn.Sequential(nn.BatchNorm1d(self.in_features), nn.ReLU()) if norm == "batchnorm_relu" else nn.Identity()
+        if norm == "batchnorm_relu":
+            self.norm = nn.Sequential(nn.BatchNorm1d(self.in_features), nn.ReLU())
+        elif norm == "batchnorm":
+            self.norm = nn.BatchNorm1d(self.in_features)
+        else:
+            self.norm = nn.Identity()
         self.register_buffer("mean", torch.zeros(()))
         self.register_buffer("std", torch.ones(()))
         self.head = self.build()

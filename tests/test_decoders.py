@@ -38,6 +38,22 @@ def test_embedding_norm_auto_follows_the_encoder():
     assert FCNN({"embedding_norm": "none"}, in_shape=(1, 3, 4), learnable_encoder=True).norm_kind == "none"
 
 
+def test_batchnorm_keeps_below_average_readings_that_batchnorm_relu_zeroes():
+    torch.manual_seed(0)
+    x = torch.randn(64, 1, 3, 4) * 3 + 5
+    with torch.no_grad():
+        for kind in ("batchnorm", "batchnorm_relu"):
+            d = Logistic({"embedding_norm": kind}, in_shape=(1, 3, 4), learnable_encoder=True).train()
+            z = d.norm(x.flatten(1))
+            if kind == "batchnorm":
+                # per pixel: batch mean 0 and (biased) variance 1 up to BatchNorm's eps = 1e-5 relative
+                torch.testing.assert_close(z.mean(0), torch.zeros(12), rtol=0, atol=1e-5)
+                torch.testing.assert_close(z.var(0, unbiased=False), torch.ones(12), rtol=0, atol=1e-4)
+                assert float((z < 0).float().mean()) > 0.3  # the below-average half survives
+            else:
+                assert float(z.min()) == 0.0  # rectified
+
+
 def test_standardize_uses_training_statistics():
     d = Logistic(in_shape=(1, 2, 2), learnable_encoder=False)
     d.set_statistics(5.0, 2.0)
