@@ -382,13 +382,14 @@ def cmd_sweep(args, extra) -> int:
     if args.dry_run:
         from .sweep.estimate import estimate
 
-        est = estimate(planned)
+        est = estimate(planned, threads=sweep.thread_budget(args.workers))
         total = sum(e["seconds"] for p, e in zip(planned, est.values()) if p.state != "finished" and e["seconds"] == e["seconds"])
         for p in planned:
             e = est[p.cell.name]
             print(f"{p.state:11s} {e['seconds']:8.1f} s ({e['source']})  {p.cell.name}")
         todo = sum(p.state != "finished" for p in planned)
-        print(f"{len(planned)} cells, {todo} to run, estimated {total / 60:.1f} min on one worker -> {out}")
+        wall = f", about {total / 60 / args.workers:.1f} min with {args.workers} workers" if args.workers > 1 else ""
+        print(f"{len(planned)} cells, {todo} to run, estimated {total / 60:.1f} min on one worker{wall} -> {out}")
         return 0
     if not args.collect:
         _quiet_lightning()

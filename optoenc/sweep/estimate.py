@@ -23,6 +23,8 @@ from ..training.rundir import RUN_FILES
 __all__ = ["kind_of", "estimate"]
 
 _WARM, _TIMED = 2, 5
+#: Scenes of the dataset timed per cell kind (a training batch at the paper's batch size).
+_SAMPLE = 200
 
 
 def kind_of(run) -> tuple:
@@ -32,19 +34,21 @@ def kind_of(run) -> tuple:
             run.sensor.sampling)
 
 
-def _sizes(run, cache: dict) -> tuple[int, int, int]:
+def _sizes(run, cache: dict) -> tuple[int, int, int, tuple, torch.Tensor]:
+    """Train, validation and test sizes, the scene shape, and a batch of the dataset's own test scenes."""
     from ..plugins import get_registry
 
     key = (run.names["dataset"], repr(run.dataset))
     if key not in cache:
         s = get_registry("dataset").get(run.names["dataset"])(run.dataset).load()
-        cache[key] = (len(s.train[0]), len(s.val[0]), len(s.test[0]), tuple(s.train[0].shape[1:]))
+        cache[key] = (len(s.train[0]), len(s.val[0]), len(s.test[0]), tuple(s.train[0].shape[1:]),
+                      s.test[0][:_SAMPLE].clone())
     return cache[key]
 
 
 def training_step(run, scene_shape, scenes: torch.Tensor | None = None):
     """``step()`` runs one optimiser step of ``run``'s cell; also returned: ``module``, ``augs``, ``canvas``,
-    ``precomputed`` and ``store_s``, as attributes of a namespace.
+    ``precomputed``, ``store_s`` and ``batch`` (what each step encodes), as attributes of a namespace.
 
     The step is the one training takes (:func:`optoenc.training.run.build`'s rules): precomputed
     embeddings for a fixed encoder, else scenes through the augmentations' canvas and the encoder, on
@@ -71,7 +75,8 @@ def training_step(run, scene_shape, scenes: torch.Tensor | None = None):
     if pre:
         x = torch.rand(bs, *enc.output_shape)
     else:
-        x = torch.rand(bs, *scene_shape) if scenes is None else scenes[:bs].to(torch.float32)
+        x = torch.rand(bs, *scene_shape) if scenes is None else scenes.to(torch.float32).repeat(
+            (-(-bs // len(scenes)),) + (1,) * (scenes.dim() - 1))[:bs]
     y = torch.randint(0, 10, (len(x),))
     extra, store_s = None, 0.0
     if stored:  # the one-off transform of the dataset, then steps on its stored windows
@@ -85,14 +90,19 @@ def training_step(run, scene_shape, scenes: torch.Tensor | None = None):
         loss.backward()
         opt.step()
 
-    return SimpleNamespace(step=step, module=module, augs=augs, canvas=canvas, precomputed=pre, store_s=store_s)
+    return SimpleNamespace(step=step, module=module, augs=augs, canvas=canvas, precomputed=pre, store_s=store_s, batch=x)
 
 
-def _measure(run, scene_shape) -> dict[str, float]:
-    """Seconds per training step and per encoded example, timed on random data of the cell's shapes."""
+def _measure(run, scene_shape, scenes: torch.Tensor | None = None) -> dict[str, float]:
+    """Seconds per training step and per encoded example, timed on ``scenes`` (default: random pixels).
+
+    Pass the dataset's own scenes: the cost of a learned encoder's step depends on what lights the
+    canvas (support regions build the operator only where a batch has light), so random pixels, which
+    light everything, overestimate a sparse digit's step up to ~25x.
+    """
     from ..training.augment_once import draws, encode_transformed
 
-    cell = training_step(run, scene_shape)
+    cell = training_step(run, scene_shape, scenes)
     enc, augs, canvas, pre, store_s = cell.module.encoder, cell.augs, cell.canvas, cell.precomputed, cell.store_s
     times = []
     for _ in range(_WARM + _TIMED):
@@ -103,7 +113,7 @@ def _measure(run, scene_shape) -> dict[str, float]:
     per_example = 0.0
     if pre:
         with torch.no_grad():
-            imgs = torch.rand(200, *scene_shape)
+            imgs = torch.rand(_SAMPLE, *scene_shape) if scenes is None else scenes[:_SAMPLE].to(torch.float32)
             u = draws(augs, len(imgs), 0, "train") if augs else None
 
             def encode(n):
@@ -118,8 +128,20 @@ def _measure(run, scene_shape) -> dict[str, float]:
     return {"step_s": step, "encode_s_per_example": per_example + store_s, "precomputed": pre}
 
 
-def estimate(planned, sweep_dir=None) -> dict[str, dict[str, Any]]:
-    """``{cell name: {"seconds": s, "source": "finished cells" | "measured"}}`` for every cell."""
+def estimate(planned, sweep_dir=None, threads: int | None = None) -> dict[str, dict[str, Any]]:
+    """``{cell name: {"seconds": s, "source": "finished cells" | "measured"}}`` for every cell.
+
+    ``threads``: the torch threads a cell will have (the sweep's per-worker budget); steps are timed
+    with that many. Timing with more threads than the cores left free is no estimate: on a machine
+    whose cores are busy, two threads made a 16-ms step take 550 ms (threads waiting on each other).
+    """
+    if threads is not None:
+        previous = torch.get_num_threads()
+        torch.set_num_threads(max(1, int(threads)))
+        try:
+            return estimate(planned, sweep_dir)
+        finally:
+            torch.set_num_threads(previous)
     known: dict[tuple, float] = {}
     for p in planned:
         times = [float(m["time_s"]) for m in read_metrics(p.path / RUN_FILES["metrics"]) if m.get("time_s")]
@@ -133,7 +155,7 @@ def estimate(planned, sweep_dir=None) -> dict[str, dict[str, Any]]:
         epochs = run.trainer.max_epochs
         k = kind_of(run)
         try:
-            n_train, n_val, n_test, shape = _sizes(run, sizes)
+            n_train, n_val, n_test, shape, sample = _sizes(run, sizes)
         except OptoencError as err:  # e.g. a cell's dataset is missing: it would fail; say so, go on
             out[p.cell.name] = {"seconds": float("nan"), "source": f"not estimated: {err}"}
             continue
@@ -143,7 +165,7 @@ def estimate(planned, sweep_dir=None) -> dict[str, dict[str, Any]]:
             out[p.cell.name] = {"seconds": round(left * known[k], 1), "source": "finished cells"}
             continue
         if k not in measured:
-            measured[k] = _measure(run, shape)
+            measured[k] = _measure(run, shape, sample)
         m = measured[k]
         steps = math.ceil(n_train / run.trainer.batch_size)
         evals = n_val + (n_test if run.trainer.test_every_epoch else 0)
