@@ -9,8 +9,10 @@ cells share the on-disk embedding cache, whose writes are atomic.
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
@@ -85,13 +87,43 @@ def _prepare(p: PlannedCell, restart_changed: bool) -> None:
     atomic_write_text(p.path / RUN_FILES["config"], p.config_yaml)
 
 
-def _run_local(p: PlannedCell, threads: int) -> tuple[bool, str]:
+class _Running:
+    """The local cell processes running now, and whether the sweep is stopping (no new cells then)."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.procs: dict[str, subprocess.Popen] = {}
+        self.stopping = False
+
+    def stop(self, signum: int) -> None:
+        """Start no more cells; pass ``signum`` on to the running ones (each saves a checkpoint and says
+        where it stopped) and wait for them to exit."""
+        with self.lock:
+            self.stopping = True
+            procs = list(self.procs.values())
+        for proc in procs:
+            if proc.poll() is None:
+                proc.send_signal(signum)
+        for proc in procs:
+            proc.wait()
+
+
+def _run_local(p: PlannedCell, threads: int, running: _Running) -> tuple[bool, str]:
     env = {**os.environ, "OMP_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads)}
     with open(p.path / "log.txt", "ab") as log:
-        proc = subprocess.run(
-            [sys.executable, "-m", "optoenc.sweep.cell", str(p.path), str(threads)],
-            stdout=log, stderr=subprocess.STDOUT, env=env, stdin=subprocess.DEVNULL,
-        )
+        with running.lock:
+            if running.stopping:
+                return False, "not started: the sweep was interrupted"
+            proc = subprocess.Popen(
+                [sys.executable, "-m", "optoenc.sweep.cell", str(p.path), str(threads)],
+                stdout=log, stderr=subprocess.STDOUT, env=env, stdin=subprocess.DEVNULL,
+            )
+            running.procs[p.cell.name] = proc
+        try:
+            proc.wait()
+        finally:
+            with running.lock:
+                running.procs.pop(p.cell.name, None)
     return proc.returncode == 0, _error(p)
 
 
@@ -151,11 +183,18 @@ def run(
             on_done(p, ok, err)
 
     if executor == "local":
-        with ThreadPoolExecutor(max_workers=workers) as pool:
-            futures = {pool.submit(_run_local, p, threads): p for p in todo}
+        running = _Running()
+        pool = ThreadPoolExecutor(max_workers=workers)
+        try:
+            futures = {pool.submit(_run_local, p, threads, running): p for p in todo}
             for fut in as_completed(futures):
                 ok, err = fut.result()
                 done(futures[fut], ok, err)
+        except BaseException as err:  # SIGINT / SIGTERM (Interrupted, KeyboardInterrupt): stop, not drain the queue
+            pool.shutdown(wait=False, cancel_futures=True)
+            running.stop(getattr(err, "signum", signal.SIGINT if isinstance(err, KeyboardInterrupt) else signal.SIGTERM))
+            raise
+        pool.shutdown()
         return failures
     from .cell import run_cell
 

@@ -66,3 +66,49 @@ def test_sweep_isolates_failures_skips_finished_and_collects(tmp_path):
     dry = _sweep(str(spec), "--out", str(moved), "--dry-run")
     assert dry.returncode == 0
     assert next(line for line in dry.stdout.splitlines() if line.rstrip().endswith(ok.name)).startswith("finished")
+
+
+LONG = """
+name: long
+base:
+  dataset: {train_size: 300, val_size: 100, test_size: 100}
+  trainer: {max_epochs: 400, verify_preset: null, eval_batch_size: 200}
+  fidelity: {grid: [48, 64]}
+  output: {examples: 0}
+axes:
+  encoder: [lens]
+  sensor.embedding: [[6, 8]]
+  decoder: [logistic]
+  seed: [0, 1, 2]
+"""
+
+
+def test_sigterm_stops_the_sweep_and_its_running_cell_and_starts_no_more(tmp_path):
+    # A stopped sweep used to drain its queue: the pool's shutdown waited for every pending cell, so a
+    # SIGTERM'd sweep went on starting cells, one after another, until all had run.
+    import os
+    import signal
+    import time
+
+    spec = tmp_path / "long.yaml"
+    spec.write_text(LONG)
+    out = tmp_path / "sweep"
+    proc = subprocess.Popen([sys.executable, "-m", "optoenc.cli", "sweep", str(spec), "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    first = out / "cells" / "seed=0"
+    deadline = time.time() + 300
+    while time.time() < deadline and not (first / "checkpoints" / "last.ckpt").is_file():
+        time.sleep(0.5)
+    assert (first / "checkpoints" / "last.ckpt").is_file(), "the first cell never checkpointed"
+    os.kill(proc.pid, signal.SIGTERM)  # the sweep only, as a scheduler would: not its process group
+    try:
+        _, err = proc.communicate(timeout=120)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        raise AssertionError("the sweep did not stop within 120 s of SIGTERM")
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    assert "interrupted by SIGTERM" in err
+    status = json.loads((first / "status.json").read_text())
+    assert status["state"] == "interrupted", status  # the cell got the signal, saved, and said so
+    for seed in (1, 2):  # never started
+        assert not (out / "cells" / f"seed={seed}" / "status.json").is_file()
