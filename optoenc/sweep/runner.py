@@ -117,6 +117,7 @@ def _run_local(p: PlannedCell, threads: int, running: _Running) -> tuple[bool, s
             proc = subprocess.Popen(
                 [sys.executable, "-m", "optoenc.sweep.cell", str(p.path), str(threads)],
                 stdout=log, stderr=subprocess.STDOUT, env=env, stdin=subprocess.DEVNULL,
+                start_new_session=True,  # a terminal's Ctrl-C reaches the sweep only, which passes it on once
             )
             running.procs[p.cell.name] = proc
         try:

@@ -5,9 +5,13 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import shutil
+import signal
 import subprocess
 import sys
+
+import pytest
 
 SPEC = """
 name: tiny
@@ -83,11 +87,11 @@ axes:
 """
 
 
-def test_sigterm_stops_the_sweep_and_its_running_cell_and_starts_no_more(tmp_path):
+@pytest.mark.parametrize("how", ["sigterm-to-the-sweep", "ctrl-c-to-its-group"])
+def test_a_stopped_sweep_stops_its_running_cell_and_starts_no_more(tmp_path, how):
     # A stopped sweep used to drain its queue: the pool's shutdown waited for every pending cell, so a
-    # SIGTERM'd sweep went on starting cells, one after another, until all had run.
-    import os
-    import signal
+    # SIGTERM'd sweep went on starting cells, one after another, until all had run. Ctrl-C signals the
+    # terminal's whole process group (the cells run in their own sessions and get it from the sweep).
     import time
 
     spec = tmp_path / "long.yaml"
@@ -100,14 +104,18 @@ def test_sigterm_stops_the_sweep_and_its_running_cell_and_starts_no_more(tmp_pat
     while time.time() < deadline and not (first / "checkpoints" / "last.ckpt").is_file():
         time.sleep(0.5)
     assert (first / "checkpoints" / "last.ckpt").is_file(), "the first cell never checkpointed"
-    os.kill(proc.pid, signal.SIGTERM)  # the sweep only, as a scheduler would: not its process group
+    sig = signal.SIGTERM if how.startswith("sigterm") else signal.SIGINT
+    if sig == signal.SIGTERM:
+        os.kill(proc.pid, sig)  # the sweep only, as a scheduler would
+    else:
+        os.killpg(proc.pid, sig)  # the sweep leads its own group here, as in a terminal
     try:
         _, err = proc.communicate(timeout=120)
     except subprocess.TimeoutExpired:
         os.killpg(proc.pid, signal.SIGKILL)
         raise AssertionError("the sweep did not stop within 120 s of SIGTERM")
-    assert proc.returncode == 128 + signal.SIGTERM, err
-    assert "interrupted by SIGTERM" in err
+    assert proc.returncode == 128 + sig, err
+    assert f"interrupted by {sig.name}" in err
     status = json.loads((first / "status.json").read_text())
     assert status["state"] == "interrupted", status  # the cell got the signal, saved, and said so
     for seed in (1, 2):  # never started
