@@ -38,10 +38,12 @@ def compose_cell(spec: SweepSpec, cell: Cell, sweep_dir: str | Path):
 
     base = dict(spec.base)
     aug_tree = base.pop("augment", None)
+    augment = None
+    if aug_tree is not None and not isinstance(aug_tree, dict):  # names, as a cell gives them
+        augment, aug_tree = _augment_names(aug_tree), None
     flat = _flatten(base)
     names = {k: flat.pop(k) for k in PLUGIN_KEYS if isinstance(flat.get(k), str)}
     seed = flat.pop("seed", None)
-    augment = None
     overrides = [f"trainer.progress={_value(flat.pop('trainer.progress', False))}"]
     overrides += [f"{k}={_value(v)}" for k, v in flat.items()]
     for k, v in cell.values:
@@ -50,13 +52,18 @@ def compose_cell(spec: SweepSpec, cell: Cell, sweep_dir: str | Path):
         elif k == "seed":
             seed = v
         elif k == "augment":
-            augment = v if isinstance(v, list) else [a.strip() for a in str(v or "").split(",") if a.strip()]
+            augment = _augment_names(v)
         else:
             overrides.append(f"{k}={_value(v)}")
     root = Path(sweep_dir) / "cells"
     overrides += [f"output.root={_value(str(root))}", f"output.name={_value(cell.name)}"]
     files = [OmegaConf.create({"augment": aug_tree})] if isinstance(aug_tree, dict) else []
     return compose(files, overrides, names, augment, seed)
+
+
+def _augment_names(v: Any) -> list[str]:
+    """Augmentation names from a list, a name or a comma-separated string (``''`` or null: none)."""
+    return list(v) if isinstance(v, list) else [a.strip() for a in str(v or "").split(",") if a.strip()]
 
 
 def cell_dir(sweep_dir: str | Path, cell: Cell) -> Path:

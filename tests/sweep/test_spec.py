@@ -63,6 +63,19 @@ def test_cell_config_layers_base_then_cell(spec, tmp_path):
     assert run.output.name == cell.name and run.trainer.progress is False
 
 
+@pytest.mark.parametrize("given", ["rescale", "rescale, rotate", ["rescale", "rotate"]])
+def test_augmentations_named_in_the_base_apply_to_every_cell_unless_a_cell_names_its_own(tmp_path, given):
+    # A base `augment: rescale` used to be dropped without a word: the cells trained untransformed.
+    spec_file = tmp_path / "s.yaml"
+    spec_file.write_text(json.dumps({"name": "s", "base": {"augment": given},
+                                     "axes": {"encoder": ["lens"]}, "cells": [{"encoder": "lens", "augment": "shift"}]}))
+    spec = load_spec(spec_file)
+    plain, own = spec.expand()
+    expected = ["rescale"] if given == "rescale" else ["rescale", "rotate"]
+    assert sorted(compose_cell(spec, plain, tmp_path / "sweep").augment) == expected
+    assert sorted(compose_cell(spec, own, tmp_path / "sweep").augment) == ["shift"]
+
+
 @pytest.mark.parametrize(
     "text,key",
     [
