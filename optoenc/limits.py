@@ -8,10 +8,12 @@ refused when the run is built, saying how much they need and how much there is.
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 from .errors import ConfigError
 
-__all__ = ["memory_bytes", "max_threads", "check_threads", "simulation_bytes", "check_simulation"]
+__all__ = ["memory_bytes", "max_threads", "check_threads", "torch_threads", "simulation_bytes", "check_simulation"]
 
 #: Threads per CPU core allowed for ``trainer.threads`` (oversubscription beyond this only slows a run down,
 #: and every thread reserves stack memory).
@@ -38,6 +40,19 @@ def check_threads(key: str, value: int | None) -> None:
         raise ConfigError(
             key, value, f"must be <= {max_threads()} ({THREADS_PER_CORE} x the {os.cpu_count()} CPU cores of this machine)"
         )
+
+
+@contextmanager
+def torch_threads(n: int) -> Iterator[None]:
+    """Within the block torch uses ``n`` (at least 1) intra-op threads; the previous count is restored after."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(max(1, int(n)))
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
 
 
 def simulation_bytes(grid: tuple[int, int], dtype: str, padding, oversample: int, channels: int = 3) -> int:

@@ -35,6 +35,7 @@ from typing import Callable
 import torch
 import torch.nn.functional as F
 
+from ..limits import torch_threads
 from ..training.rundir import atomic_write_bytes
 
 __all__ = ["compare", "format_table", "write_csv", "FIELDS"]
@@ -101,15 +102,11 @@ def compare(encoders, embedding=(24, 32), scene_shape=None, batch: int = 200, re
     if scene_shape is not None:
         x, x2 = _canvas(x, tuple(scene_shape)), _canvas(x2, tuple(scene_shape))
     rows = []
-    before = torch.get_num_threads()
-    torch.set_num_threads(int(threads))
-    try:
+    with torch_threads(threads):
         for i, name in enumerate(encoders):
             if progress is not None:
                 progress(i, len(encoders), name)
             rows.append(_compare_one(name, embedding, x, y, x2, y2, repeats, seed))
-    finally:
-        torch.set_num_threads(before)
     return rows
 
 

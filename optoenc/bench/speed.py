@@ -15,7 +15,7 @@ import statistics
 import time
 import warnings
 
-import torch
+from ..limits import torch_threads
 
 __all__ = ["interleaved", "format_speed"]
 
@@ -39,39 +39,34 @@ def interleaved(encoder: str = "learned_slm", preset: str = "default", threads=(
     from .pipeline import _data, _train_step, build_encoder, paper_setting, preset_setting
 
     data = _data(1, batch, 1)
-    before = torch.get_num_threads()
     out = {"encoder": encoder, "preset": preset, "batch": batch, "repeats": repeats, "threads": {}}
-    try:
-        for n in threads:
-            torch.set_num_threads(int(n))
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                fast = build_encoder(encoder, preset_setting(preset, encoder))
-                paper = build_encoder(encoder, paper_setting())
-                step = _train_step(fast, data.batch, data.labels, "operator", seed, data.num_classes)
-                pstep = _train_step(paper, data.batch, data.labels, "published", seed, data.num_classes)
-                step()  # warm-up: operator and correlation tensors, allocator
+    for n in threads:
+        with torch_threads(n), warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            fast = build_encoder(encoder, preset_setting(preset, encoder))
+            paper = build_encoder(encoder, paper_setting())
+            step = _train_step(fast, data.batch, data.labels, "operator", seed, data.num_classes)
+            pstep = _train_step(paper, data.batch, data.labels, "published", seed, data.num_classes)
+            step()  # warm-up: operator and correlation tensors, allocator
+            pstep()
+            load0 = _load()
+            p_times, s_times = [], []
+            for i in range(repeats):
+                if progress is not None:
+                    progress(i, repeats, f"{n} thread(s)")
+                t = time.perf_counter()
                 pstep()
-                load0 = _load()
-                p_times, s_times = [], []
-                for i in range(repeats):
-                    if progress is not None:
-                        progress(i, repeats, f"{n} thread(s)")
+                p_times.append(time.perf_counter() - t)
+                for _ in range(per_paper):
                     t = time.perf_counter()
-                    pstep()
-                    p_times.append(time.perf_counter() - t)
-                    for _ in range(per_paper):
-                        t = time.perf_counter()
-                        step()
-                        s_times.append(time.perf_counter() - t)
-            res = {"paper_s": p_times, "step_s": s_times, "load_before": load0, "load_after": _load()}
-            for k, v in (("paper", p_times), ("step", s_times)):
-                res[f"{k}_min"], res[f"{k}_median"] = min(v), statistics.median(v)
-            res["ratio_min"] = res["paper_min"] / res["step_min"]
-            res["ratio_median"] = res["paper_median"] / res["step_median"]
-            out["threads"][int(n)] = res
-    finally:
-        torch.set_num_threads(before)
+                    step()
+                    s_times.append(time.perf_counter() - t)
+        res = {"paper_s": p_times, "step_s": s_times, "load_before": load0, "load_after": _load()}
+        for k, v in (("paper", p_times), ("step", s_times)):
+            res[f"{k}_min"], res[f"{k}_median"] = min(v), statistics.median(v)
+        res["ratio_min"] = res["paper_min"] / res["step_min"]
+        res["ratio_median"] = res["paper_median"] / res["step_median"]
+        out["threads"][int(n)] = res
     return out
 
 

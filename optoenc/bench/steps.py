@@ -19,6 +19,8 @@ import warnings
 
 import torch
 
+from ..limits import torch_threads
+
 __all__ = ["compare", "format_table"]
 
 
@@ -42,11 +44,9 @@ def compare(spec_path, only=None, repeats: int = 3, steps: int = 3, threads: int
 
     spec = load_spec(spec_path)
     cells = [c for c in spec.expand() if not only or any(fnmatchcase(c.name, p) for p in only)]
-    before = torch.get_num_threads()
-    torch.set_num_threads(int(threads))
     rows: list[dict] = []
     data: dict = {}
-    try:
+    with torch_threads(threads):
         for i, cell in enumerate(cells):
             if progress is not None:
                 progress(i, len(cells), cell.name)
@@ -74,8 +74,6 @@ def compare(spec_path, only=None, repeats: int = 3, steps: int = 3, threads: int
                 "cell": cell.name, "encoder": run.names["encoder"], "whole_s": whole, "support_s": part,
                 "speedup": whole / part, "epoch_steps": n, "whole_epoch_s": n * whole, "support_epoch_s": n * part,
             })
-    finally:
-        torch.set_num_threads(before)
     return rows
 
 

@@ -18,6 +18,7 @@ import torch
 
 from ..training.callbacks import read_metrics
 from ..errors import OptoencError
+from ..limits import torch_threads
 from ..training.rundir import RUN_FILES
 
 __all__ = ["kind_of", "estimate"]
@@ -136,12 +137,8 @@ def estimate(planned, sweep_dir=None, threads: int | None = None) -> dict[str, d
     whose cores are busy, two threads made a 16-ms step take 550 ms (threads waiting on each other).
     """
     if threads is not None:
-        previous = torch.get_num_threads()
-        torch.set_num_threads(max(1, int(threads)))
-        try:
+        with torch_threads(threads):
             return estimate(planned, sweep_dir)
-        finally:
-            torch.set_num_threads(previous)
     known: dict[tuple, float] = {}
     for p in planned:
         times = [float(m["time_s"]) for m in read_metrics(p.path / RUN_FILES["metrics"]) if m.get("time_s")]

@@ -110,3 +110,16 @@ def test_cli_non_finite_loss_aborts_with_exit_1_naming_the_setting(tmp_path, tin
     assert failed["state"] == "failed" and failed["error"] == "TrainingDiverged" and failed["exit_code"] == 1
     assert failed["epoch"] == 0 and "sensor.read_noise" in failed["message"]
     assert not (run_dir / "summary.json").exists() and not (run_dir / "interrupted.json").exists()
+
+
+def test_torch_threads_sets_the_count_and_restores_it_even_on_error():
+    before = torch.get_num_threads()
+    target = 1 if before != 1 else 2
+    with pytest.raises(RuntimeError, match="inside"):
+        with limits.torch_threads(target):
+            assert torch.get_num_threads() == target
+            raise RuntimeError("inside")
+    assert torch.get_num_threads() == before
+    with limits.torch_threads(0):  # never below one thread
+        assert torch.get_num_threads() == 1
+    assert torch.get_num_threads() == before

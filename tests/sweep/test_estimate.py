@@ -56,20 +56,24 @@ def test_cells_differing_only_in_draw_mode_or_sampling_are_different_kinds(quick
     assert len(kinds) == 3
 
 
+def _estimate_one(quick, monkeypatch, tmp_path, record, **kw):
+    """``estimate`` of one new learned cell with ``_measure`` replaced: ``record(scenes)`` is kept per call."""
+    from types import SimpleNamespace
+
+    run = compose(overrides=quick + SMALL, names={"encoder": "learned_slm", "decoder": "logistic"})
+    seen = []
+    monkeypatch.setattr(est, "_measure", lambda r, shape, scenes=None: seen.append(record(scenes)) or
+                        {"step_s": 0.01, "encode_s_per_example": 0.0, "precomputed": False})
+    planned = [SimpleNamespace(run=run, path=tmp_path / "cell", state="new", cell=SimpleNamespace(name="c"))]
+    return run, est.estimate(planned, **kw), seen
+
 
 def test_estimates_time_the_datasets_own_scenes(quick, monkeypatch, tmp_path):
     # Random pixels light the whole canvas, so a learned cell's support regions never shrink: timed on them,
     # Table 3's learned 24x32 rotate cell was estimated at 11,948 s against ~500 s run.
-    from types import SimpleNamespace
-
     from optoenc.plugins import get_registry
 
-    run = compose(overrides=quick + SMALL, names={"encoder": "learned_slm", "decoder": "logistic"})
-    seen = []
-    monkeypatch.setattr(est, "_measure", lambda r, shape, scenes=None: seen.append(scenes) or
-                        {"step_s": 0.01, "encode_s_per_example": 0.0, "precomputed": False})
-    planned = [SimpleNamespace(run=run, path=tmp_path / "cell", state="new", cell=SimpleNamespace(name="c"))]
-    out = est.estimate(planned)
+    run, out, seen = _estimate_one(quick, monkeypatch, tmp_path, lambda scenes: scenes)
     digits = get_registry("dataset").get(run.names["dataset"])(run.dataset).load().test[0]
     assert out["c"]["source"] == "measured" and len(seen) == 1
     assert torch.equal(seen[0], digits[: len(seen[0])]) and len(seen[0]) == min(est._SAMPLE, len(digits))
@@ -83,13 +87,7 @@ def test_a_batch_larger_than_the_sample_is_tiled_from_it(quick):
 
 
 def test_steps_are_timed_with_the_workers_thread_budget(quick, monkeypatch, tmp_path):
-    from types import SimpleNamespace
-
-    run = compose(overrides=quick + SMALL, names={"encoder": "learned_slm", "decoder": "logistic"})
-    seen = []
-    monkeypatch.setattr(est, "_measure", lambda r, shape, scenes=None: seen.append(torch.get_num_threads()) or
-                        {"step_s": 0.01, "encode_s_per_example": 0.0, "precomputed": False})
     before = torch.get_num_threads()
-    planned = [SimpleNamespace(run=run, path=tmp_path / "cell", state="new", cell=SimpleNamespace(name="c"))]
-    est.estimate(planned, threads=1)
-    assert seen == [1] and torch.get_num_threads() == before
+    budget = 2 if before == 1 else 1  # differs from the current count, so the setting is seen
+    _, _, seen = _estimate_one(quick, monkeypatch, tmp_path, lambda scenes: torch.get_num_threads(), threads=budget)
+    assert seen == [budget] and torch.get_num_threads() == before

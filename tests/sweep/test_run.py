@@ -10,6 +10,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import time
 
 import pytest
 
@@ -92,8 +93,6 @@ def test_a_stopped_sweep_stops_its_running_cell_and_starts_no_more(tmp_path, how
     # A stopped sweep used to drain its queue: the pool's shutdown waited for every pending cell, so a
     # SIGTERM'd sweep went on starting cells, one after another, until all had run. Ctrl-C signals the
     # terminal's whole process group (the cells run in their own sessions and get it from the sweep).
-    import time
-
     spec = tmp_path / "long.yaml"
     spec.write_text(LONG)
     out = tmp_path / "sweep"
@@ -113,7 +112,7 @@ def test_a_stopped_sweep_stops_its_running_cell_and_starts_no_more(tmp_path, how
         _, err = proc.communicate(timeout=120)
     except subprocess.TimeoutExpired:
         os.killpg(proc.pid, signal.SIGKILL)
-        raise AssertionError("the sweep did not stop within 120 s of SIGTERM")
+        raise AssertionError(f"the sweep did not stop within 120 s of {sig.name}")
     assert proc.returncode == 128 + sig, err
     assert f"interrupted by {sig.name}" in err
     status = json.loads((first / "status.json").read_text())
