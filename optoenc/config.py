@@ -74,8 +74,10 @@ class TrainerConfig(Settings):
     )
     num_nodes: int = setting(1, "machines for distributed training (Lightning's num_nodes)", ge=1, le=4096)
     precision: str = setting(
-        "32-true", "Lightning precision ('32-true', '16-mixed', 'bf16-mixed', '64-true'); the optics keep "
-        "fidelity.dtype", choices=("32-true", "32", "16-mixed", "bf16-mixed", "64-true", "64", "transformer-engine"),
+        "32-true", "Lightning precision ('32-true', '16-mixed', 'bf16-mixed', '64-true'; 'auto': 'bf16-mixed' where "
+        "the device multiplies bfloat16 natively (CPU AMX or AVX512-BF16, CUDA compute capability 8.0+), else "
+        "'32-true'); the optics keep fidelity.dtype",
+        choices=("32-true", "32", "16-mixed", "bf16-mixed", "64-true", "64", "transformer-engine", "auto"),
     )
     logger: str = setting(
         "csv", "experiment logger beside metrics.csv: 'csv' (Lightning's CSVLogger, under logs/), 'tensorboard', "

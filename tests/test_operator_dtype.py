@@ -10,7 +10,9 @@ from optoenc.errors import ConfigError
 from optoenc.fidelity.knobs import Knobs
 
 # Small grids alias the spherical wave (a warning); the rounding studied here does not depend on it.
-pytestmark = pytest.mark.filterwarnings("ignore::optoenc.optics.diagnostics.SamplingWarning")
+# bfloat16 is asked for explicitly here: on a CPU that emulates it, it warns (tests/test_hardware.py checks that).
+pytestmark = [pytest.mark.filterwarnings("ignore::optoenc.optics.diagnostics.SamplingWarning"),
+              pytest.mark.filterwarnings("ignore::optoenc.hardware.SlowPrecisionWarning")]
 
 # A small grid keeps each encoder cheap; the operator's rounding does not depend on its size.
 SMALL = {"grid": (96, 128)}

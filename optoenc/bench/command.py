@@ -103,6 +103,9 @@ def main(args) -> int:
         emb = parse_hw("--embedding", args.embedding, "24x32")
         shape = parse_hw("--scene-shape", args.scene_shape, "109x146") if args.scene_shape else None
         print(load_line("start"))
+        from ..hardware import native_bfloat16
+
+        print(f"native bfloat16 products on this CPU (AMX or AVX512-BF16): {'yes' if native_bfloat16('cpu') else 'no'}")
         with bar:
             rows = precision.compare(encoders, emb, shape, repeats=args.repeats, threads=threads[0], progress=progress)
         print(precision.format_table(rows))

@@ -37,14 +37,20 @@ def _pct(x: Any) -> float | None:
     return None if x is None or (isinstance(x, float) and math.isnan(x)) else round(100 * float(x), 2)
 
 
-def precision(run) -> str:
-    """``"<operator dtype>/<trainer precision>"``: ``float32/32-true`` by default, ``bfloat16/bf16-mixed`` fast."""
+def precision(run, summary: dict | None = None) -> str:
+    """``"<operator dtype>/<trainer precision>"``: ``float32/32-true`` by default, ``bfloat16/bf16-mixed`` fast.
+
+    What the run used: ``summary.json``'s resolved values where it has them (``auto`` depends on the
+    machine), else the configuration's.
+    """
     from ..fidelity.knobs import FIDELITY_PRESETS
 
-    op = run.fidelity.operator_dtype or "same"
+    summary = summary or {}
+    fid = summary.get("fidelity") or {}
+    op = fid.get("operator_dtype") or run.fidelity.operator_dtype or "same"
     if op == "same":
-        op = run.fidelity.dtype or FIDELITY_PRESETS.get(run.fidelity.preset, {}).get("dtype", run.fidelity.preset)
-    return f"{op}/{run.trainer.precision}"
+        op = fid.get("dtype") or run.fidelity.dtype or FIDELITY_PRESETS.get(run.fidelity.preset, {}).get("dtype", run.fidelity.preset)
+    return f"{op}/{summary.get('precision') or run.trainer.precision}"
 
 
 #: Spec keys with columns of their own (or that do not change the experiment): not part of a cell's ``variant``.
@@ -81,7 +87,7 @@ def cell_rows(spec: SweepSpec, planned: list[PlannedCell]) -> list[dict[str, Any
             "decoder": run.names["decoder"],
             "transform": "+".join(run.augment) or "original",
             "augment_mode": mode,
-            "precision": precision(run),
+            "precision": precision(run, summary),
             "variant": variant(p.cell),
             "seed": run.seed,
             "epochs": len(metrics) or None,

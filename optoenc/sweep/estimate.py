@@ -17,6 +17,7 @@ from typing import Any
 import torch
 
 from ..training.callbacks import read_metrics
+from .. import hardware
 from ..errors import OptoencError
 from ..limits import torch_threads
 from ..training.rundir import RUN_FILES
@@ -32,7 +33,7 @@ def kind_of(run) -> tuple:
     """Cells of one kind cost the same per epoch."""
     return (run.names["encoder"], run.names["decoder"], tuple(run.sensor.embedding), tuple(run.augment),
             run.trainer.augment_draw, run.trainer.batch_size, run.trainer.test_every_epoch, str(run.fidelity),
-            run.sensor.sampling)
+            run.sensor.sampling, run.trainer.precision)
 
 
 def _sizes(run, cache: dict) -> tuple[int, int, int, tuple, torch.Tensor]:
@@ -85,9 +86,12 @@ def training_step(run, scene_shape, scenes: torch.Tensor | None = None):
         x, extra = store_transformed(augs, canvas, x, draws(augs, len(x), 0, "train"), bs, enc.scene_config.object_height)
         store_s = (time.perf_counter() - t0) / len(x)
 
+    mixed = hardware.trainer_precision(run.trainer.precision, "cpu").startswith("bf16")  # as Lightning's autocast
+
     def step() -> None:
         opt.zero_grad()
-        loss = torch.nn.functional.cross_entropy(module(x, augment=True, draws=extra), y)
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=mixed):
+            loss = torch.nn.functional.cross_entropy(module(x, augment=True, draws=extra), y)
         loss.backward()
         opt.step()
 

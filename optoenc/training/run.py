@@ -18,6 +18,7 @@ from typing import Any
 import torch
 
 
+from .. import hardware
 from ..config import RunConfig, build_encoder
 from ..errors import ConfigError, DataError, Interrupted, OptoencError
 from ..fidelity.knobs import FidelityConfig
@@ -216,7 +217,7 @@ def _trainer(run: RunConfig, run_dir: Path, logger: bool = True, extra_callbacks
         devices=_devices(run.trainer.devices),
         strategy=run.trainer.strategy,
         num_nodes=run.trainer.num_nodes,
-        precision=run.trainer.precision,
+        precision=hardware.trainer_precision(run.trainer.precision, run.trainer.accelerator),
         logger=_logger(run, run_dir) if logger else False,
         callbacks=callbacks,
         enable_progress_bar=bar,
@@ -300,6 +301,7 @@ def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> di
         "test_acc": float(test[0]["test_acc"]) if test else float("nan"),
         "best_test_acc": _best_test(run_dir),
         "fidelity": parts.module.encoder.knobs.to_dict(),
+        "precision": trainer.precision,  # Lightning's, resolved ('auto' -> bf16-mixed or 32-true)
         "wall_time_s": round(clock.total(), 2),  # every segment of a resumed run
         "segment_wall_time_s": round(time.time() - start, 2),
         "encoder": to_dict(run.encoder),

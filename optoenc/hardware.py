@@ -1,0 +1,101 @@
+"""What this machine multiplies fast: the ``auto`` precisions, and a warning where bfloat16 is slow.
+
+bfloat16 matrix products are several times faster than float32 on CPUs with
+AMX or AVX512-BF16 units and on CUDA GPUs from compute capability 8.0; on
+a CPU without them (AVX2 only, say) torch emulates them and they are about
+4 times *slower* (``optoenc bench precision`` measures both). A spec that
+wants the fast products on every machine says ``auto``:
+
+- ``fidelity.operator_dtype: auto`` -> ``bfloat16`` where native, else
+  ``same`` (the optics' dtype);
+- ``trainer.precision: auto`` -> ``bf16-mixed`` where native, else
+  ``32-true``.
+
+The resolved values are what a run records (its ``summary.json``).
+"""
+
+from __future__ import annotations
+
+import functools
+import warnings
+from pathlib import Path
+
+__all__ = ["cpu_flags", "native_bfloat16", "operator_dtype", "trainer_precision", "SlowPrecisionWarning"]
+
+#: CPU feature flags (Linux ``/proc/cpuinfo``) of native bfloat16 matrix products.
+BF16_CPU_FLAGS = frozenset({"amx_bf16", "avx512_bf16"})
+_GPU = ("gpu", "cuda", "auto")
+
+
+class SlowPrecisionWarning(UserWarning):
+    """bfloat16 asked for explicitly on hardware that emulates it (slower than float32)."""
+
+
+@functools.lru_cache(maxsize=1)
+def cpu_flags() -> frozenset[str]:
+    """This CPU's feature flags from ``/proc/cpuinfo`` (empty where there is none)."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("flags"):
+                return frozenset(line.split(":", 1)[1].split())
+    except OSError:
+        pass
+    return frozenset()
+
+
+def _cuda_used(accelerator: str) -> bool:
+    import torch
+
+    return accelerator in _GPU and torch.cuda.is_available()
+
+
+def native_bfloat16(accelerator: str = "auto") -> bool:
+    """Whether the device a run with ``trainer.accelerator=accelerator`` uses multiplies bfloat16 natively.
+
+    ``auto``, ``gpu``, ``cuda``: a CUDA GPU where one is present (compute capability 8.0 or newer), else the
+    CPU; ``cpu``: AMX or AVX512-BF16 in :func:`cpu_flags`; ``mps``: no.
+    """
+    if _cuda_used(accelerator):
+        import torch
+
+        return bool(torch.cuda.is_bf16_supported(including_emulation=False))
+    if accelerator == "mps":
+        return False
+    return bool(BF16_CPU_FLAGS & cpu_flags())
+
+
+def _where(accelerator: str) -> str:
+    if _cuda_used(accelerator):
+        return "this GPU"
+    flags = cpu_flags()
+    isa = next((f.upper() for f in ("avx512f", "avx2", "avx") if f in flags), "")
+    return f"this CPU ({isa}, no AMX or AVX512-BF16)" if isa else "this CPU (no AMX or AVX512-BF16)"
+
+
+def _warn_slow(key: str, value: str, accelerator: str) -> None:
+    warnings.warn(
+        f"{key}={value}: {_where(accelerator)} emulates bfloat16, about 4x slower products than float32; "
+        f"'auto' uses bfloat16 only where it is native",
+        SlowPrecisionWarning, stacklevel=3,
+    )
+
+
+def operator_dtype(value: str, accelerator: str = "auto") -> str:
+    """``fidelity.operator_dtype`` resolved: ``auto`` -> ``bfloat16`` where native, else ``same``.
+
+    An explicit ``bfloat16`` stays (it is a measured knob) but warns where it is emulated.
+    """
+    if value == "auto":
+        return "bfloat16" if native_bfloat16(accelerator) else "same"
+    if value == "bfloat16" and not native_bfloat16(accelerator):
+        _warn_slow("fidelity.operator_dtype", value, accelerator)
+    return value
+
+
+def trainer_precision(value: str, accelerator: str = "auto") -> str:
+    """``trainer.precision`` resolved: ``auto`` -> ``bf16-mixed`` where native, else ``32-true``."""
+    if value == "auto":
+        return "bf16-mixed" if native_bfloat16(accelerator) else "32-true"
+    if value.startswith("bf16") and not native_bfloat16(accelerator):
+        _warn_slow("trainer.precision", value, accelerator)
+    return value
