@@ -97,6 +97,8 @@ def test_wall_time_of_an_uninterrupted_run_is_its_segment(tmp_path, quick):
     run = compose(overrides=quick + ["trainer.max_epochs=2"], names={"encoder": "diffuser", "decoder": "logistic"})
     summary = fit(run, tmp_path / "one", callbacks=[_SlowFirstEpoch()])
     assert abs(summary["wall_time_s"] - summary["segment_wall_time_s"]) < 0.5
+    # What ran, resolved: Lightning's precision and the mask-to-sensor distance (metres; learned with learn_d2).
+    assert summary["precision"] == "32-true" and summary["d2"] == pytest.approx(run.encoder.d2, rel=1e-12)
 
 
 def test_resume_through_the_cli(tmp_path, quick_args, capsys):

@@ -302,6 +302,7 @@ def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> di
         "best_test_acc": _best_test(run_dir),
         "fidelity": parts.module.encoder.knobs.to_dict(),
         "precision": trainer.precision,  # Lightning's, resolved ('auto' -> bf16-mixed or 32-true)
+        "d2": float(parts.module.encoder.d2),  # metres: the mask-to-sensor distance trained (learned with learn_d2)
         "wall_time_s": round(clock.total(), 2),  # every segment of a resumed run
         "segment_wall_time_s": round(time.time() - start, 2),
         "encoder": to_dict(run.encoder),
