@@ -123,6 +123,14 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
     #: (:meth:`support_region`; exact); False: always the whole scene's.
     support_regions: bool = True
 
+    def lr_scales(self) -> dict[str, float]:
+        """Learning rate of named parameters relative to ``trainer.encoder_lr`` (others: 1).
+
+        Adam moves every parameter by about its learning rate each step, whatever the size of its
+        gradient: a scalar such as a log-distance needs a smaller one than a mask's logits.
+        """
+        return {}
+
     def __init__(
         self,
         config: Any = None,

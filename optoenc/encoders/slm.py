@@ -51,6 +51,10 @@ class SLMConfig(EncoderConfig):
 @dataclass
 class LearnedSLMConfig(SLMConfig):
     learn_d2: bool = setting(False, "also learn d2 (d2 = d2_init * exp(s), s learned)")
+    d2_lr_scale: float = setting(
+        0.01, "learn_d2: learning rate of s = log(d2 / d2_init) relative to trainer.encoder_lr (Adam moves s by "
+        "about its rate each step: at the mask's 1e-2, d2 drifted from 4 to 0.3 mm within one epoch)", gt=0, le=1,
+    )
     patterns: int = setting(
         1, "K patterns learned jointly with one decoder; each capture displays one, drawn at random "
         "(variable-pattern defence, docs/privacy.md); 1: a single pattern", ge=1, le=64
@@ -182,6 +186,9 @@ class LearnedSLM(PatternSet, _SLMBase):
     def weights(self) -> torch.Tensor:
         logits = self.logits if self.patterns == 1 else self.logits[self.active_pattern]
         return self._quantize(torch.sigmoid(logits))
+
+    def lr_scales(self) -> dict[str, float]:
+        return {"log_d2_scale": float(self.config.d2_lr_scale)} if self.config.learn_d2 else {}
 
     def d2_tensor(self) -> torch.Tensor | float:
         if getattr(self, "log_d2_scale", None) is None:  # also while the base class initialises

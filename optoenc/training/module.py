@@ -174,9 +174,13 @@ class EncoderClassifier(L.LightningModule):
     # --------------------------------------------------------------- optimiser
     def configure_optimizers(self):
         groups = [{"params": list(self.decoder.parameters()), "lr": self.lr}]
-        enc = [p for p in self.encoder.parameters() if p.requires_grad]
-        if enc:
-            groups.append({"params": enc, "lr": self.encoder_lr})
+        scales = self.encoder.lr_scales()
+        enc: dict[float, list] = {}
+        for name, p in self.encoder.named_parameters():
+            if p.requires_grad:
+                enc.setdefault(float(scales.get(name, 1.0)), []).append(p)
+        for scale, params in sorted(enc.items(), reverse=True):  # the encoder's own rate first
+            groups.append({"params": params, "lr": self.encoder_lr * scale})
         if self.adversary is not None:
             groups.append({"params": list(self.adversary.parameters()), "lr": self.adversary.lr})
         return _adam(groups)
