@@ -2,8 +2,8 @@
 
 bfloat16 matrix products are several times faster than float32 on CPUs with
 AMX or AVX512-BF16 units and on CUDA GPUs from compute capability 8.0; on
-a CPU without them (AVX2 only, say) torch emulates them and they are about
-4 times *slower* (``optoenc bench precision`` measures both). A spec that
+a CPU without them (AVX2 only, say) torch emulates them and they are 4-10
+times *slower* (``optoenc bench precision`` measures both). A spec that
 wants the fast products on every machine says ``auto``:
 
 - ``fidelity.operator_dtype: auto`` -> ``bfloat16`` where native, else
@@ -74,7 +74,7 @@ def _where(accelerator: str) -> str:
 
 def _warn_slow(key: str, value: str, accelerator: str) -> None:
     warnings.warn(
-        f"{key}={value}: {_where(accelerator)} emulates bfloat16, about 4x slower products than float32; "
+        f"{key}={value}: {_where(accelerator)} emulates bfloat16: products 4-10x slower than float32 (optoenc bench precision); "
         f"'auto' uses bfloat16 only where it is native",
         SlowPrecisionWarning, stacklevel=3,
     )

@@ -170,7 +170,7 @@ class FidelityConfig(Settings):
         None,
         "precision of the scene->embedding operator's matrix products ('same': the optics' dtype; 'bfloat16': "
         "relative embedding error about 0.2 %, below the 1 % of 40 dB sensor noise, and a faster step where the "
-        "operator dominates on CPUs with AMX or AVX512-BF16 (elsewhere emulated and about 4x slower: a warning); "
+        "operator dominates on CPUs with AMX or AVX512-BF16 (elsewhere emulated and 4-10x slower: a warning); "
         "'auto': 'bfloat16' where native, else 'same'; its gradient error is measured per encoder by `optoenc "
         "bench precision`); the PSF keeps `dtype`",
         choices=(*_OPERATOR_DTYPES, "auto"),
@@ -217,6 +217,6 @@ class FidelityConfig(Settings):
             v = getattr(self, name)
             if v is not None:
                 out[name] = v
-        if "operator_dtype" in out:  # 'auto': bfloat16 where this machine multiplies it natively
-            out["operator_dtype"] = hardware.operator_dtype(out["operator_dtype"])
+        # 'auto': bfloat16 where this machine multiplies it natively (an explicit bfloat16 warns where emulated)
+        out["operator_dtype"] = hardware.operator_dtype(out.get("operator_dtype", "same"))
         return Knobs(**out)
