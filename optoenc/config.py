@@ -102,6 +102,12 @@ class TrainerConfig(Settings):
         "example, kept for all epochs, for train, validation and test (the paper's robustness protocol)",
         choices=("epoch", "once"),
     )
+    loop: str = setting(
+        "auto", "training loop: 'batch' hands Lightning every mini-batch; 'epoch' hands it a whole shuffled "
+        "epoch of precomputed embeddings and steps through its mini-batches in one call (the same batches, noise "
+        "and updates, without Lightning's per-step hooks; train_loss_step is not logged): for fixed encoders in "
+        "one process; 'auto': 'epoch' wherever it applies, else 'batch'", choices=("auto", "batch", "epoch"),
+    )
     test_every_epoch: bool = setting(
         False, "also measure test accuracy after every epoch (metrics.csv column test_acc; the paper's "
         "'best test over epochs' figure, reported only beside the validation-selected one)"

@@ -8,6 +8,7 @@ import lightning as L
 import time
 
 import pytest
+import torch
 import yaml
 
 from optoenc.training.callbacks import read_metrics
@@ -72,6 +73,19 @@ def test_resume_continues_from_the_next_epoch_losing_and_repeating_none(tmp_path
     strip = lambda rows: [{k: v for k, v in r.items() if k != "time_s"} for r in rows]  # noqa: E731
     assert strip(rows_r) == strip(rows_w)  # per-batch derived seeds: identical continuation
     assert resumed["test_acc"] == whole["test_acc"]
+
+
+def test_last_checkpoint_is_the_last_epoch_even_when_validation_stops_improving(tmp_path, quick):
+    # Lightning writes last.ckpt only beside a new best: with validation flat after epoch 0 (a learning
+    # rate of 1e-12 leaves the weights as they are, so val_acc ties and never improves) last.ckpt stayed
+    # at epoch 0, and a resumed run would have trained epochs 1-2 again.
+    run = compose(overrides=quick + ["trainer.max_epochs=3", "trainer.lr=1e-12"], names={"encoder": "diffuser", "decoder": "logistic"})
+    fit(run, tmp_path / "r")
+    last = torch.load(tmp_path / "r" / "checkpoints" / "last.ckpt", weights_only=False)
+    best = torch.load(tmp_path / "r" / "checkpoints" / "best.ckpt", weights_only=False)
+    assert (last["epoch"], best["epoch"]) == (2, 0)
+    rows = read_metrics(tmp_path / "r" / "metrics.csv")
+    assert len({r["val_acc"] for r in rows}) == 1  # the premise: validation never improved
 
 
 class _SlowFirstEpoch(L.Callback):
@@ -144,7 +158,8 @@ def test_epoch_training_loss_is_the_batch_weighted_mean_of_the_step_losses(tmp_p
     from optoenc.training.run import build
 
     run = compose(overrides=["dataset.train_size=450", "dataset.val_size=100", "dataset.test_size=100",
-                             "sensor.embedding=[6,8]", "fidelity.grid=[48,64]", "trainer.batch_size=200"],
+                             "sensor.embedding=[6,8]", "fidelity.grid=[48,64]", "trainer.batch_size=200",
+                             "trainer.loop=batch"],  # Lightning's per-batch loop (the epoch loop logs no step losses)
                   names={"encoder": "lens", "decoder": "logistic"})
     parts = build(run)
     trainer = L.Trainer(max_epochs=1, log_every_n_steps=1, logger=CSVLogger(tmp_path), enable_checkpointing=False,

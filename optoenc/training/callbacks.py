@@ -100,7 +100,12 @@ class EpochTest(L.Callback):
 
 
 class RunCheckpoint(ModelCheckpoint):
-    """``ModelCheckpoint`` that keeps its best score when the run directory is moved or copied.
+    """``ModelCheckpoint`` that writes ``last.ckpt`` every epoch and keeps its best score when the run moves.
+
+    Lightning (2.x) writes ``last.ckpt`` only when it writes a top-k checkpoint,
+    i.e. when the monitored validation accuracy improves: a run interrupted
+    after its best epoch would resume from that epoch and train the rest again.
+    Here ``last.ckpt`` is written at the end of every training epoch.
 
     Lightning drops ``best_model_score`` when the checkpoint folder differs
     from the one stored in the checkpoint, so a resumed copy would replace
@@ -108,6 +113,11 @@ class RunCheckpoint(ModelCheckpoint):
     re-rooted in the current folder instead. The state key is Lightning's own,
     so checkpoints of either class restore into the other.
     """
+
+    def on_train_epoch_end(self, trainer, pl_module) -> None:
+        super().on_train_epoch_end(trainer, pl_module)  # best.ckpt (and last.ckpt with it) where val improved
+        if self.save_last and self._should_save_on_train_epoch_end(trainer) and not self._should_skip_saving_checkpoint(trainer):
+            self._save_last_checkpoint(trainer, self._monitor_candidates(trainer))
 
     @property
     def state_key(self) -> str:
@@ -176,6 +186,8 @@ class FiniteLoss(L.Callback):
         loss = outputs.get("loss") if isinstance(outputs, dict) else outputs
         if loss is None or math.isfinite(float(loss)):
             return
+        if isinstance(outputs, dict) and "batch_idx" in outputs:  # the epoch loop: the mini-batch within the epoch
+            batch_idx = outputs["batch_idx"]
         from ..errors import TrainingDiverged
 
         raise TrainingDiverged(

@@ -40,6 +40,10 @@ class EncoderClassifier(L.LightningModule):
             (``trainer.augment_draw=once``, a learned encoder): windows, with
             their offsets in place of the draws
             (:func:`optoenc.training.augment_once.store_transformed`).
+        epoch_loop: ``(batch_size, limit_train_batches)``: each training batch is a whole shuffled
+            epoch of precomputed embeddings, stepped through in mini-batches of ``batch_size``
+            by :func:`optoenc.training.epoch_loop.train_epoch` (``trainer.loop = 'epoch'``);
+            ``None``: Lightning's per-batch loop.
     """
 
     def __init__(
@@ -55,6 +59,7 @@ class EncoderClassifier(L.LightningModule):
         augment_eval: bool = True,
         adversary: nn.Module | None = None,
         stored_canvases: bool = False,
+        epoch_loop: tuple | None = None,
     ):
         super().__init__()
         self.encoder = encoder
@@ -72,6 +77,8 @@ class EncoderClassifier(L.LightningModule):
         self.val_acc = MulticlassAccuracy(num_classes=n, average="micro")
         self.test_acc = MulticlassAccuracy(num_classes=n, average="micro")
         self._train_totals: tuple = (0.0, 0)  # this epoch's (sum of batch losses x batch sizes, examples)
+        self.epoch_loop = epoch_loop
+        self.automatic_optimization = epoch_loop is None  # the epoch loop steps the optimiser itself
 
     # --------------------------------------------------------------- forward
     def clean_embedding(self, x: torch.Tensor, augment: bool, draws: torch.Tensor | None = None) -> torch.Tensor:
@@ -122,6 +129,10 @@ class EncoderClassifier(L.LightningModule):
         return loss
 
     def training_step(self, batch, batch_idx):
+        if self.epoch_loop is not None:
+            from .epoch_loop import train_epoch
+
+            return train_epoch(self, batch, *self.epoch_loop)
         return self._step(batch, self.train_acc, "train", augment=True, batch_idx=batch_idx)
 
     def on_train_epoch_start(self) -> None:

@@ -27,6 +27,7 @@ from ..privacy import adversary
 from ..settings import to_dict
 from . import pictures
 from . import cache
+from .epoch_loop import resolve_loop
 from .loaders import encode, make_loader
 from .module import EncoderClassifier
 from .resume import clear_interrupted, interrupted_note, mark_failed, raise_on_signals, read_checkpoint
@@ -45,6 +46,8 @@ class Parts:
     splits: Any
     loaders: dict[str, Any]
     precomputed: bool
+    #: ``trainer.loop`` resolved: ``'batch'`` (Lightning's per-batch loop) or ``'epoch'`` (:mod:`.epoch_loop`).
+    loop: str = "batch"
 
 
 def precomputes(run: RunConfig, encoder) -> bool:
@@ -127,6 +130,12 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
             expect={k: len(v[1]) for k, v in data.items()},
         )
         data = {k: (emb[k], y) for k, (_x, y) in data.items()}
+    world = _world_size(run)
+    obj = adversary.from_config(run.privacy, encoder, splits.train[0].shape[1:])
+    loop = resolve_loop(
+        run.trainer.loop, precomputed=precomputed, world=world, strategy=str(run.trainer.strategy),
+        precision=hardware.trainer_precision(run.trainer.precision, run.trainer.accelerator), adversary=obj is not None,
+    )
     module = EncoderClassifier(
         encoder,
         decoder,
@@ -136,8 +145,9 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
         encoder_lr=run.trainer.encoder_lr,
         seed=run.seed,
         precomputed=precomputed,
-        adversary=adversary.from_config(run.privacy, encoder, splits.train[0].shape[1:]),
+        adversary=obj,
         stored_canvases=stored,
+        epoch_loop=(bs, run.trainer.batch_limit("train")) if loop == "epoch" else None,
     )
     if decoder.norm_kind == "standardize":
         sample = data["train"][0][:5000]
@@ -152,17 +162,18 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
     # One process: whole-batch indexing. Distributed: per-example loaders for Lightning's samplers, and
     # trainer.batch_size stays the examples per optimiser step: each of the W processes takes batch_size / W
     # (gradients are averaged across them), so a run takes the same steps whatever W.
-    world = _world_size(run)
     one = world == 1
     if run.trainer.batch_size % world:
         raise ConfigError("trainer.batch_size", run.trainer.batch_size,
                           f"must divide evenly over the {world} training processes (devices x num_nodes)")
+    # The epoch loop's one batch an epoch: every example, in the per-batch loader's order.
+    train_bs = len(data["train"][1]) if loop == "epoch" else bs // world
     loaders = {
-        "train": make_loader(*data["train"][:2], bs // world, shuffle=True, seed=run.seed, extra=data["train"][2:], batched=one),
+        "train": make_loader(*data["train"][:2], train_bs, shuffle=True, seed=run.seed, extra=data["train"][2:], batched=one),
         "val": make_loader(*data["val"][:2], ebs, shuffle=False, extra=data["val"][2:], batched=one),
         "test": make_loader(*data["test"][:2], ebs, shuffle=False, extra=data["test"][2:], batched=one),
     }
-    return Parts(module, splits, loaders, precomputed)
+    return Parts(module, splits, loaders, precomputed, loop)
 
 
 def _encode(encoder, images, batch_size, progress, split):
@@ -179,7 +190,7 @@ def checkpoint_path(run_dir: Path, which: str = "last") -> Path:
     return Path(run_dir) / RUN_FILES["checkpoints"] / f"{which}.ckpt"
 
 
-def _trainer(run: RunConfig, run_dir: Path, logger: bool = True, extra_callbacks=(), test_loader=None):
+def _trainer(run: RunConfig, run_dir: Path, logger: bool = True, extra_callbacks=(), test_loader=None, loop: str = "batch"):
     from .callbacks import EpochLines, EpochMetrics, FiniteLoss, RunCheckpoint, WallClock
 
     callbacks = [
@@ -209,7 +220,8 @@ def _trainer(run: RunConfig, run_dir: Path, logger: bool = True, extra_callbacks
         callbacks.append(EpochLines())
     return _lightning_trainer(
         run,
-        limit_train_batches=run.trainer.batch_limit("train"),
+        # The epoch loop applies the limit to its mini-batches; Lightning sees one batch an epoch.
+        limit_train_batches=1.0 if loop == "epoch" else run.trainer.batch_limit("train"),
         limit_val_batches=run.trainer.batch_limit("val"),
         limit_test_batches=run.trainer.batch_limit("test"),
         max_epochs=run.trainer.max_epochs,
@@ -223,6 +235,8 @@ def _trainer(run: RunConfig, run_dir: Path, logger: bool = True, extra_callbacks
         enable_progress_bar=bar,
         enable_model_summary=False,
         num_sanity_val_steps=0,
+        # The epoch loop logs once an epoch, one Lightning step: every step is a logging step.
+        **({"log_every_n_steps": 1} if loop == "epoch" else {}),
         default_root_dir=run_dir,
     )
 
@@ -266,7 +280,7 @@ def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> di
     from .callbacks import WallClock
 
     clock = WallClock(start)
-    trainer = _trainer(run, run_dir, extra_callbacks=(*callbacks, clock), test_loader=parts.loaders["test"])
+    trainer = _trainer(run, run_dir, extra_callbacks=(*callbacks, clock), test_loader=parts.loaders["test"], loop=parts.loop)
     run_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_text(run_dir / RUN_FILES["config"], run.to_yaml())
     if not resume and parts.module.encoder.learnable:  # a fixed encoder's initial PSF is its final one
@@ -309,6 +323,7 @@ def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> di
         "scene": to_dict(run.scene),
         "sensor": to_dict(run.sensor),
         "precomputed_embeddings": parts.precomputed,
+        "loop": parts.loop,  # trainer.loop resolved
     }
     if getattr(run, "fidelity_auto", None):
         summary["fidelity_auto"] = run.fidelity_auto

@@ -1,0 +1,117 @@
+"""One epoch of precomputed embeddings per Lightning step: the mini-batches stepped through in one call.
+
+A fixed encoder's run trains a small decoder on embeddings encoded once. Its step is a few
+milliseconds of arithmetic, and Lightning's per-step machinery (the batch loop, hooks, the
+closure, logging) costs as much again. With ``trainer.loop = 'epoch'`` Lightning is handed
+the whole shuffled epoch as one batch and :func:`train_epoch` steps through its mini-batches:
+the same batches in the same order, the same per-batch seeds (so the same noise), the same
+updates (plain backward, then the optimiser's step) as the per-batch loop, without the
+per-step hooks. Validation, testing, checkpoints (at epoch ends, as before), logging and
+resuming stay Lightning's.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+
+from ..errors import ConfigError
+
+__all__ = ["LOOPS", "resolve_loop", "batch_count", "train_epoch"]
+
+#: ``trainer.loop`` values.
+LOOPS = ("auto", "batch", "epoch")
+#: Lightning precisions whose optimiser step is the plain one (no gradient scaler): the epoch loop can run them.
+PLAIN_PRECISIONS = ("32-true", "32", "64-true", "64", "bf16-mixed", "bf16-true")
+
+
+def resolve_loop(value: str, *, precomputed: bool, world: int, strategy: str, precision: str, adversary: bool) -> str:
+    """``trainer.loop`` resolved to ``'batch'`` or ``'epoch'``.
+
+    ``'epoch'`` applies to precomputed embeddings (a fixed encoder) trained in one process
+    (strategy ``auto``: a distributed wrapper expects one backward per forward), without a
+    privacy adversary (it needs the scenes) and without a gradient scaler (``16-mixed``);
+    ``'auto'`` picks it wherever it applies.
+
+    Raises:
+        ConfigError: ``'epoch'`` asked for where it does not apply (naming why).
+    """
+    why = None
+    if not precomputed:
+        why = "only for precomputed embeddings (a fixed encoder with trainer.precompute = true)"
+    elif world != 1 or strategy != "auto":
+        why = f"only for one training process with strategy 'auto' (here {world} process(es), strategy {strategy!r})"
+    elif adversary:
+        why = "not with a privacy adversary (it reads the scenes)"
+    elif precision not in PLAIN_PRECISIONS:
+        why = f"not with precision {precision!r} (its gradient scaler needs Lightning's step)"
+    if value == "batch" or (value == "auto" and why):
+        return "batch"
+    if value == "epoch" and why:
+        raise ConfigError("trainer.loop", value, f"applies {why}; use 'batch' or 'auto'")
+    return "epoch"
+
+
+def batch_count(n: int, batch_size: int, limit: int | float = 1.0) -> int:
+    """Mini-batches of an epoch of ``n`` shuffled examples, as the per-batch loader makes them.
+
+    The last partial batch is kept unless it holds one example (BatchNorm cannot normalise it:
+    :func:`~optoenc.training.loaders.make_loader` drops it); ``limit`` is Lightning's
+    ``limit_train_batches`` (a fraction < 1, or a number of batches).
+    """
+    nb = -(-n // batch_size)
+    if n > batch_size and n % batch_size == 1:
+        nb -= 1
+    if isinstance(limit, float):
+        return nb if limit >= 1.0 else max(1, int(nb * limit))
+    return min(nb, int(limit))
+
+
+def train_epoch(module, batch, batch_size: int, limit: int | float = 1.0) -> dict:
+    """Train ``module`` (an :class:`~optoenc.training.module.EncoderClassifier`) on one shuffled epoch.
+
+    ``batch`` is the epoch's ``(embeddings, labels)`` in the sampler's order. Logs
+    ``train_loss_epoch`` and ``train_acc`` as the per-batch loop does at its last batch (the
+    per-step ``train_loss_step`` is not logged). Returns ``{"loss": mean loss}``, or at the
+    first non-finite loss ``{"loss": that loss, "batch_idx": its batch}`` (the run's
+    :class:`~optoenc.training.callbacks.FiniteLoss` stops it there).
+    """
+    from .module import SEED_STRIDE, _reseed
+
+    x, y = batch[0], batch[1]
+    opt = module.optimizers()
+    opt = getattr(opt, "optimizer", opt)  # the torch optimiser itself: no per-step Lightning hooks
+    base = module.seed + SEED_STRIDE * (module.current_epoch + 1)
+    total, count, count_steps = 0.0, 0, 0
+    for b in range(batch_count(len(y), batch_size, limit)):
+        _reseed(base + 7 * b)  # the per-batch loop's on_train_batch_start
+        xb, yb = x[b * batch_size : (b + 1) * batch_size], y[b * batch_size : (b + 1) * batch_size]
+        logits = module.decoder(module.embed(xb, augment=True))
+        loss = F.cross_entropy(logits, yb)
+        if not math.isfinite(loss.item()):
+            _count_steps(module.trainer, count_steps)
+            return {"loss": loss.detach(), "batch_idx": b}
+        module.train_acc.update(logits.detach(), yb)
+        total, count = total + loss.detach() * len(yb), count + len(yb)  # as the per-batch loop sums
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        count_steps += 1
+    _count_steps(module.trainer, count_steps)
+    mean = total / count if count else torch.tensor(float("nan"))
+    module.log("train_loss_epoch", mean, on_step=False, on_epoch=True, prog_bar=True, batch_size=max(count, 1))
+    module.log("train_acc", module.train_acc.compute(), on_step=False, on_epoch=True, prog_bar=True)
+    return {"loss": mean}
+
+
+def _count_steps(trainer, n: int) -> None:
+    """Add ``n`` optimiser steps to Lightning's count (``trainer.global_step``), as its optimiser wrapper would.
+
+    The checkpoint callback saves only when ``global_step`` has moved since its last save, and the
+    loggers' step axis is ``global_step``: without this count no checkpoint after the first is written.
+    """
+    progress = trainer.fit_loop.epoch_loop.manual_optimization.optim_step_progress
+    progress.total.increment_by(n)
+    progress.current.increment_by(n)

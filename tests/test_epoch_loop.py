@@ -1,0 +1,92 @@
+"""trainer.loop = 'epoch': a whole epoch of precomputed embeddings per Lightning step, trained exactly as per batch."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from optoenc.cli import main
+from optoenc.config import compose
+from optoenc.errors import ConfigError
+from optoenc.training import fit
+from optoenc.training.callbacks import read_metrics
+from optoenc.training.epoch_loop import batch_count, resolve_loop
+from optoenc.training.loaders import make_loader
+
+TINY = ["dataset.val_size=100", "dataset.test_size=100", "sensor.embedding=[6,8]", "fidelity.grid=[48,64]",
+        "trainer.progress=false", "trainer.verify_preset=null", "output.examples=0", "trainer.test_every_epoch=true"]
+
+
+@pytest.mark.parametrize("n", [1, 2, 199, 200, 201, 399, 400, 401, 450, 1000])
+@pytest.mark.parametrize("batch_size", [1, 2, 200])
+def test_batch_count_is_the_per_batch_loaders_length(n, batch_size):
+    # The epoch loop must step through exactly the batches the per-batch loader yields (a last batch
+    # of one example is dropped for BatchNorm, any other ragged one kept).
+    loader = make_loader(torch.zeros(n, 1), torch.zeros(n, dtype=torch.long), batch_size, shuffle=True)
+    assert batch_count(n, batch_size) == len(loader) == len(list(loader))
+
+
+def test_batch_count_applies_lightnings_limit():
+    # Lightning's limit_train_batches: a fraction (floored, at least one batch) or a number of batches.
+    assert batch_count(1000, 100, 0.25) == 2 and batch_count(1000, 100, 0.01) == 1
+    assert batch_count(1000, 100, 3) == 3 and batch_count(1000, 100, 50) == 10 and batch_count(1000, 100, 1.0) == 10
+
+
+@pytest.mark.filterwarnings("ignore")  # the small grid's sampling warning
+@pytest.mark.parametrize(
+    "encoder,decoder,extra",
+    [
+        ("lens", "fcnn", ["dataset.train_size=450"]),  # BatchNorm; a ragged last batch of 50
+        ("diffuser", "logistic", ["dataset.train_size=401"]),  # a last batch of one: dropped
+        ("lens", "fcnn", ["dataset.train_size=1000", "trainer.limit_train_batches=3"]),
+        ("lens", "logistic", ["dataset.train_size=1000", "trainer.limit_train_batches=0.5"]),
+    ],
+)
+def test_the_epoch_loop_trains_exactly_as_the_batch_loop(tmp_path, encoder, decoder, extra):
+    # The same batches in the same order, the same per-batch seeds (so the same noise) and the same
+    # Adam updates: the weights after two epochs are bit for bit the batch loop's, and so are every
+    # metric of metrics.csv but the time. Exact equality: the same float operations on the same
+    # tensors in the same order.
+    runs = {}
+    for loop in ("batch", "epoch"):
+        run = compose(overrides=[*TINY, *extra, "trainer.max_epochs=2", f"trainer.loop={loop}"],
+                      names={"encoder": encoder, "decoder": decoder}, seed=5)
+        summary = fit(run, tmp_path / loop)
+        assert summary["loop"] == loop
+        ckpt = {w: torch.load(tmp_path / loop / "checkpoints" / f"{w}.ckpt", weights_only=False) for w in ("last", "best")}
+        rows = [{k: v for k, v in r.items() if k != "time_s"} for r in read_metrics(tmp_path / loop / "metrics.csv")]
+        runs[loop] = (summary, ckpt, rows)
+    (sb, cb, rb), (se, ce, re_) = runs["batch"], runs["epoch"]
+    for which in ("last", "best"):  # the checkpoints are written at the same epochs, with the same step counts
+        wb, we = cb[which]["state_dict"], ce[which]["state_dict"]
+        assert wb.keys() == we.keys() and all(torch.equal(wb[k], we[k]) for k in wb)
+        assert (ce[which]["epoch"], ce[which]["global_step"]) == (cb[which]["epoch"], cb[which]["global_step"]) != (0, 0)
+    assert cb["last"]["epoch"] == 1
+    assert rb == re_ and len(re_) == 2 and all(r["test_acc"] for r in re_)
+    assert (sb["test_acc"], sb["best_epoch"]) == (se["test_acc"], se["best_epoch"]) and se["best_epoch"] is not None
+
+
+def test_auto_picks_the_epoch_loop_only_where_it_applies():
+    common = dict(world=1, strategy="auto", precision="32-true", adversary=False)
+    assert resolve_loop("auto", precomputed=True, **common) == "epoch"
+    assert resolve_loop("auto", precomputed=False, **common) == "batch"  # a learned encoder: scenes per batch
+    assert resolve_loop("auto", precomputed=True, **{**common, "world": 2}) == "batch"  # DDP: one backward per forward
+    assert resolve_loop("auto", precomputed=True, **{**common, "strategy": "ddp"}) == "batch"
+    assert resolve_loop("auto", precomputed=True, **{**common, "adversary": True}) == "batch"
+    assert resolve_loop("auto", precomputed=True, **{**common, "precision": "16-mixed"}) == "batch"  # gradient scaler
+    assert resolve_loop("auto", precomputed=True, **{**common, "precision": "bf16-mixed"}) == "epoch"
+    assert resolve_loop("batch", precomputed=True, **common) == "batch"
+    with pytest.raises(ConfigError, match=r"trainer\.loop.*epoch.*precomputed"):
+        resolve_loop("epoch", precomputed=False, **common)
+    with pytest.raises(ConfigError, match=r"trainer\.loop.*16-mixed"):
+        resolve_loop("epoch", precomputed=True, **{**common, "precision": "16-mixed"})
+
+
+def test_cli_refuses_the_epoch_loop_for_a_learned_encoder_with_one_line(tmp_path, capsys):
+    code = main(["fit", "--encoder", "learned_slm", "--decoder", "logistic", "--trainer.loop=epoch",
+                 f"--output.root={tmp_path}", *[f"--{o}" for o in TINY]])
+    lines = capsys.readouterr().err.strip().splitlines()
+    # The CLI names the run directory it was about to use, then the one error line.
+    assert code == 2 and len(lines) == 2 and lines[0].startswith("run directory: "), lines
+    assert lines[1].startswith("optoenc: error:") and "trainer.loop = 'epoch'" in lines[1] and "'batch'" in lines[1]
+    assert not any(p.is_file() for p in tmp_path.rglob("*"))  # refused before anything is written
