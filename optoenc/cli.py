@@ -91,9 +91,10 @@ def _parser() -> argparse.ArgumentParser:
         "speed: the learned SLM's step vs the published paper step, interleaved; auto: the cheapest measured "
         "setting meeting --tolerance; optics: PSF timings; precision: bfloat16 operator and decoder products against "
         "float32 (embedding and gradient errors, step speed-up, interleaved); steps: the training step of a sweep "
-        "spec's cells (--spec, --only) with the whole scene operator and with the support region, interleaved.",
+        "spec's cells (--spec, --only) with the whole scene operator and with the support region, interleaved; loop: "
+        "fixed-encoder cells' epochs with trainer.loop=batch and =epoch, alternated (--epochs, --repeats, --threads).",
     )
-    b.add_argument("what", nargs="?", default="fidelity", choices=("fidelity", "converge", "speed", "auto", "optics", "precision", "steps"),
+    b.add_argument("what", nargs="?", default="fidelity", choices=("fidelity", "converge", "speed", "auto", "optics", "precision", "steps", "loop"),
                    help="which benchmark")
     b.add_argument("--out", metavar="DIR", help="also write CSV/PNG here")
     b.add_argument("--docs", metavar="DIR", help="fidelity: also rewrite the generated blocks of DIR/benchmarks.md and "
@@ -119,6 +120,7 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--tolerance", type=float, default=0.01, help="auto: largest relative embedding error (0.01 = 1%%)")
     b.add_argument("--safety", type=float, default=1.0, help="auto: require error * safety <= tolerance")
     b.add_argument("--from-csv", metavar="CSV", help="auto: choose among the rows of a CSV of `optoenc bench --out`")
+    b.add_argument("--epochs", type=int, default=3, help="loop: epochs per run (the first of each is warm-up, not timed)")
     b.add_argument("--spec", metavar="SPEC.yaml", help="steps: the sweep spec whose cells are timed")
     b.add_argument("--only", action="append", metavar="GLOB", help="steps: only the cells whose name matches (repeatable)")
     sw = sub.add_parser("sweep", help="run a sweep of runs from a spec (resumable), collect CSV, tables and plots")
@@ -161,14 +163,9 @@ def _load_yaml(path: str):
 
 
 def _quiet_lightning() -> None:
-    import logging
-    import warnings
+    from .training.quiet import quiet_lightning
 
-    for name in ("lightning", "lightning.pytorch", "lightning.fabric", "lightning_utilities"):
-        logging.getLogger(name).setLevel(logging.WARNING)
-    warnings.filterwarnings("ignore", message=".*does not have many workers.*")
-    warnings.filterwarnings("ignore", message=".*LeafSpec.*")
-    warnings.filterwarnings("ignore", message=".*exists and is not empty.*")
+    quiet_lightning()
 
 
 def cmd_fit(args, extra) -> int:
@@ -346,6 +343,7 @@ def cmd_simulate(args, extra) -> int:
 def cmd_bench(args, extra) -> int:
     from .bench.command import main as bench_main
 
+    _quiet_lightning()  # bench loop trains runs
     return bench_main(args)
 
 

@@ -291,3 +291,19 @@ def test_bench_steps_times_both_settings_of_a_cell(tmp_path):
     assert row["speedup"] == pytest.approx(row["whole_s"] / row["support_s"])
     assert row["support_epoch_s"] == pytest.approx(4 * row["support_s"])
     assert "| base | " in steps.format_table([row])  # one value per axis: the cell is the spec's base
+
+
+@pytest.mark.filterwarnings("ignore")  # the 48 x 64 grid's sampling warning
+def test_bench_loop_times_both_loops_and_finds_the_same_result(capsys):
+    # Both loops run (each run reports the loop it resolved), each epoch after the first is timed, and the
+    # two loops end with the same test accuracy (they train bit for bit alike). No speed is asserted (the
+    # machine may be shared): that is the command's job.
+    from optoenc.bench import loop
+
+    tiny = ("dataset.train_size=450", "dataset.val_size=100", "dataset.test_size=100", "fidelity.grid=[48,64]")
+    (row,) = loop.compare([("lens", (6, 8), "fcnn")], epochs=2, repeats=1, overrides=tiny)
+    assert row["same_test_acc"] and row["epochs_timed"] == 1
+    assert row["speedup"] == pytest.approx(row["batch_epoch_s"] / row["epoch_epoch_s"])
+    assert "| lens 6x8 fcnn |" in loop.format_table([row], 1)
+    assert main(["bench", "loop", "--epochs", "1"]) == 2
+    assert "--epochs = 1" in capsys.readouterr().err

@@ -4,7 +4,8 @@
 checks, CSV and Pareto plot; ``converge``: the convergence study
 (:mod:`optoenc.bench.converge`); ``speed``: the interleaved step timing
 (:mod:`optoenc.bench.speed`); ``steps``: sweep cells' training steps with and without
-support regions (:mod:`optoenc.bench.steps`); ``auto``: the cheapest measured setting;
+support regions (:mod:`optoenc.bench.steps`); ``loop``: fixed-encoder epochs with the
+per-batch and the per-epoch training loop (:mod:`optoenc.bench.loop`); ``auto``: the cheapest measured setting;
 ``optics``: the PSF micro-benchmark. Every report starts and ends with the
 machine's load average (the machine may be shared).
 """
@@ -124,6 +125,18 @@ def main(args) -> int:
         if args.only and not rows:
             raise ConfigError("--only", ",".join(args.only), "matches no cell of the spec")
         print(steps.format_table(rows))
+        print(load_line("end"))
+        return 0
+    if args.what == "loop":
+        from . import loop
+
+        if args.epochs < 2 or args.repeats < 1:
+            raise ConfigError("--epochs" if args.epochs < 2 else "--repeats", args.epochs if args.epochs < 2 else args.repeats,
+                              "--epochs >= 2 (the first is warm-up) and --repeats >= 1")
+        print(load_line("start"))
+        with bar:
+            rows = loop.compare(epochs=args.epochs, repeats=args.repeats, threads=threads[0], progress=progress)
+        print(loop.format_table(rows, threads[0]))
         print(load_line("end"))
         return 0
     if args.what == "speed":

@@ -49,13 +49,10 @@ def run_cell(path: str | Path, threads: int | None = None) -> dict:
 
 
 def main(argv=None) -> int:
-    import logging
-    import warnings
+    from ..training.quiet import quiet_lightning
 
     args = list(sys.argv[1:] if argv is None else argv)
-    for name in ("lightning", "lightning.pytorch", "lightning.fabric", "lightning_utilities"):
-        logging.getLogger(name).setLevel(logging.WARNING)
-    warnings.filterwarnings("ignore", message=".*(does not have many workers|LeafSpec|exists and is not empty).*")
+    quiet_lightning()
     try:
         run_cell(args[0], int(args[1]) if len(args) > 1 else None)
     except Exception as err:  # the status file holds the details; one line for the sweep's log

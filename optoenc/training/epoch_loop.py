@@ -19,7 +19,7 @@ import torch.nn.functional as F
 
 from ..errors import ConfigError
 
-__all__ = ["LOOPS", "resolve_loop", "batch_count", "train_epoch"]
+__all__ = ["LOOPS", "resolve_loop", "batch_count", "train_epoch", "align_step_counts"]
 
 #: ``trainer.loop`` values.
 LOOPS = ("auto", "batch", "epoch")
@@ -115,3 +115,18 @@ def _count_steps(trainer, n: int) -> None:
     progress = trainer.fit_loop.epoch_loop.manual_optimization.optim_step_progress
     progress.total.increment_by(n)
     progress.current.increment_by(n)
+
+
+def align_step_counts(trainer) -> None:
+    """Lightning's two optimiser-step counters made equal (the larger), at the start of training.
+
+    Lightning counts steps in the automatic-optimisation counter (the batch loop) or the manual one
+    (the epoch loop), and ``global_step`` reads the one the module uses: a run checkpointed under one
+    loop and resumed under the other (a sweep started before ``trainer.loop`` existed) would restart
+    its step count from zero.
+    """
+    loop = trainer.fit_loop.epoch_loop
+    counters = (loop.automatic_optimization.optim_progress.optimizer.step.total, loop.manual_optimization.optim_step_progress.total)
+    n = max(c.completed for c in counters)
+    for c in counters:
+        c.increment_by(n - c.completed)

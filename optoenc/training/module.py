@@ -135,6 +135,11 @@ class EncoderClassifier(L.LightningModule):
             return train_epoch(self, batch, *self.epoch_loop)
         return self._step(batch, self.train_acc, "train", augment=True, batch_idx=batch_idx)
 
+    def on_train_start(self) -> None:
+        from .epoch_loop import align_step_counts
+
+        align_step_counts(self.trainer)  # a run resumed under the other trainer.loop keeps its step count
+
     def on_train_epoch_start(self) -> None:
         self._train_totals = (0.0, 0)
         self.train_acc.reset()
