@@ -90,21 +90,3 @@ def test_cli_refuses_the_epoch_loop_for_a_learned_encoder_with_one_line(tmp_path
     assert code == 2 and len(lines) == 2 and lines[0].startswith("run directory: "), lines
     assert lines[1].startswith("optoenc: error:") and "trainer.loop = 'epoch'" in lines[1] and "'batch'" in lines[1]
     assert not any(p.is_file() for p in tmp_path.rglob("*"))  # refused before anything is written
-
-
-@pytest.mark.filterwarnings("ignore")  # the small grid's sampling warning
-@pytest.mark.parametrize("first,then", [("batch", "epoch"), ("epoch", "batch")])
-def test_a_run_checkpointed_by_one_loop_resumes_under_the_other(tmp_path, first, then):
-    # Cells of a sweep started before trainer.loop existed ran the batch loop; resumed now, 'auto' gives the
-    # epoch loop. The continuation must be the uninterrupted run's: the same weights, bit for bit, and the
-    # same optimiser-step count (Lightning keeps one counter per kind of loop).
-    common = [*TINY, "dataset.train_size=450"]
-    names = {"encoder": "lens", "decoder": "fcnn"}
-    whole = fit(compose(overrides=[*common, "trainer.max_epochs=2", f"trainer.loop={first}"], names=names), tmp_path / "w")
-    fit(compose(overrides=[*common, "trainer.max_epochs=1", f"trainer.loop={first}"], names=names), tmp_path / "r")
-    resumed = fit(compose(overrides=[*common, "trainer.max_epochs=2", f"trainer.loop={then}"], names=names),
-                  tmp_path / "r", resume=True)
-    assert resumed["loop"] == then and resumed["test_acc"] == whole["test_acc"]
-    a, b = (torch.load(tmp_path / d / "checkpoints" / "last.ckpt", weights_only=False) for d in ("w", "r"))
-    assert (a["epoch"], a["global_step"]) == (b["epoch"], b["global_step"]) == (1, 6)  # 3 batches an epoch
-    assert all(torch.equal(a["state_dict"][k], b["state_dict"][k]) for k in a["state_dict"])

@@ -61,6 +61,7 @@ LAYERS: dict[str, int] = {
     "optoenc.training.run": 7,
     "optoenc.sweep": 7,
     "optoenc.bench.steps": 7,
+    "optoenc.bench.loop": 7,
     "optoenc.privacy.report": 7,
     # 8. commands
     "optoenc.cli": 8,

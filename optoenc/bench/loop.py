@@ -25,7 +25,7 @@ CELLS = (("fixed_slm", (24, 32), "fcnn"), ("fixed_slm", (6, 8), "fcnn"), ("fixed
 def _epoch_times(encoder: str, embedding: tuple[int, int], decoder: str, loop: str, epochs: int, threads: int,
                  overrides: tuple[str, ...] = ()):
     from ..config import compose
-    from ..training import fit
+    from ..training.run import fit
     from ..training.callbacks import read_metrics
 
     run = compose(names={"encoder": encoder, "decoder": decoder}, overrides=[

@@ -9,7 +9,14 @@ import torch
 
 from optoenc.callbacks import read_metrics
 
+from optoenc.config import compose
+from optoenc.training import fit
+
 from faultkit import one_line_error, run
+
+#: A small run for the checkpoint tests called from Python (batch 200: 450 examples are 3 batches an epoch).
+_TINY_LOOP = ["dataset.val_size=100", "dataset.test_size=100", "sensor.embedding=[6,8]", "fidelity.grid=[48,64]",
+              "trainer.progress=false", "trainer.verify_preset=null", "output.examples=0"]
 
 
 def _snapshot(run_dir):
@@ -160,3 +167,34 @@ def test_copied_run_keeps_its_best_checkpoint(copy_of_trained, tmp_path):
     proc = run("fit", "--resume", moved, "--trainer.max_epochs=2")
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert torch.load(moved / "checkpoints" / "best.ckpt", map_location="cpu", weights_only=False)["epoch"] == 0
+
+
+def test_last_checkpoint_is_the_last_epoch_even_when_validation_stops_improving(tmp_path, quick):
+    # Lightning writes last.ckpt only beside a new best: with validation flat after epoch 0 (a learning
+    # rate of 1e-12 leaves the weights as they are, so val_acc ties and never improves) last.ckpt stayed
+    # at epoch 0, and a resumed run would have trained epochs 1-2 again.
+    run = compose(overrides=quick + ["trainer.max_epochs=3", "trainer.lr=1e-12"], names={"encoder": "diffuser", "decoder": "logistic"})
+    fit(run, tmp_path / "r")
+    last = torch.load(tmp_path / "r" / "checkpoints" / "last.ckpt", weights_only=False)
+    best = torch.load(tmp_path / "r" / "checkpoints" / "best.ckpt", weights_only=False)
+    assert (last["epoch"], best["epoch"]) == (2, 0)
+    rows = read_metrics(tmp_path / "r" / "metrics.csv")
+    assert len({r["val_acc"] for r in rows}) == 1  # the premise: validation never improved
+
+
+@pytest.mark.filterwarnings("ignore")  # the small grid's sampling warning
+@pytest.mark.parametrize("first,then", [("batch", "epoch"), ("epoch", "batch")])
+def test_a_run_checkpointed_by_one_loop_resumes_under_the_other(tmp_path, first, then):
+    # Cells of a sweep started before trainer.loop existed ran the batch loop; resumed now, 'auto' gives the
+    # epoch loop. The continuation must be the uninterrupted run's: the same weights, bit for bit, and the
+    # same optimiser-step count (Lightning keeps one counter per kind of loop).
+    common = [*_TINY_LOOP, "dataset.train_size=450"]
+    names = {"encoder": "lens", "decoder": "fcnn"}
+    whole = fit(compose(overrides=[*common, "trainer.max_epochs=2", f"trainer.loop={first}"], names=names), tmp_path / "w")
+    fit(compose(overrides=[*common, "trainer.max_epochs=1", f"trainer.loop={first}"], names=names), tmp_path / "r")
+    resumed = fit(compose(overrides=[*common, "trainer.max_epochs=2", f"trainer.loop={then}"], names=names),
+                  tmp_path / "r", resume=True)
+    assert resumed["loop"] == then and resumed["test_acc"] == whole["test_acc"]
+    a, b = (torch.load(tmp_path / d / "checkpoints" / "last.ckpt", weights_only=False) for d in ("w", "r"))
+    assert (a["epoch"], a["global_step"]) == (b["epoch"], b["global_step"]) == (1, 6)  # 3 batches an epoch
+    assert all(torch.equal(a["state_dict"][k], b["state_dict"][k]) for k in a["state_dict"])
