@@ -222,3 +222,23 @@ def test_even_subcells_are_rejected():
 
     with pytest.raises(ConfigError, match="odd"):
         im.correlation_tensor(im.box_matrix(8, 2), torch.eye(8, dtype=DT), 4, sub=2)
+
+
+@pytest.mark.parametrize(
+    "a,h,Hp,b,w,Wp,rows_first",
+    [
+        (3, 4, 12, 2, 5, 9, True),  # a small scene: the row factor first
+        (4, 9, 6, 3, 11, 7, False),  # a scene larger than the PSF grid (Table 3's canvas): the column factor first
+    ],
+)
+def test_scene_operator_is_the_triple_contraction_in_either_order(a, h, Hp, b, w, Wp, rows_first):
+    # The operator is sum_kl ry[a,h,k] psf[c,k,l] rx[b,w,l], computed as two products in whichever order
+    # costs fewer multiply-adds; both orders must give it (float64: agreement to 1e-12 relative), and
+    # the gradient with respect to the PSF must be that of the contraction (gradcheck, float64).
+    assert (a * h * Wp * (Hp + b * w) <= Hp * b * w * (Wp + a * h)) == rows_first  # the case covers its branch
+    g = torch.Generator().manual_seed(3)
+    ry, rx = torch.rand(a, h, Hp, generator=g, dtype=torch.float64), torch.rand(b, w, Wp, generator=g, dtype=torch.float64)
+    psf = torch.rand(2, Hp, Wp, generator=g, dtype=torch.float64, requires_grad=True)
+    ref = torch.einsum("phk,ckl,qwl->cpqhw", ry, psf, rx)
+    torch.testing.assert_close(im.scene_operator(psf, ry, rx), ref, rtol=1e-12, atol=0)
+    assert torch.autograd.gradcheck(lambda p: im.scene_operator(p, ry, rx), (psf,))

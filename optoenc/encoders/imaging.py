@@ -267,13 +267,20 @@ def scene_operator(psf: torch.Tensor, ry: torch.Tensor, rx: torch.Tensor) -> tor
         ``(C, a, b, h, w)`` operator ``A`` with
         ``embedding[c, a, b] = sum_pq A[c, a, b, p, q] scene[c, p, q]``.
     """
-    C, (a, h, _), (b, w, Wp) = psf.shape[0], ry.shape, rx.shape
-    t = torch.einsum("phk,ckl->cphl", ry, psf)  # (C, a, h, Wp)
-    # One matrix product (C a h, Wp) x (Wp, b w), then one transposing copy into the (C, a, b, h, w)
-    # layout apply_operator reads as a matrix. einsum's own plan for this contraction copied the
-    # operator twice more (forward and backward; build + apply + gradient 1.35x slower in bfloat16 on
-    # Table 3's 24x32 canvas, one thread: docs/benchmarks.md, "Operator layout").
-    m = t.reshape(C * a * h, Wp) @ rx.reshape(b * w, Wp).T  # (C a h, b w)
+    C, (a, h, Hp), (b, w, Wp) = psf.shape[0], ry.shape, rx.shape
+    # Two matrix products, in the order with fewer multiply-adds, then one transposing copy into the
+    # (C, a, b, h, w) layout apply_operator reads as a matrix. einsum's own plan copied the operator
+    # twice more (forward and backward; docs/benchmarks.md, "Operator layout").
+    if a * h * Wp * (Hp + b * w) <= Hp * b * w * (Wp + a * h):
+        # rows first: (C, a h, Wp), then (C a h, Wp) x (Wp, b w)
+        t = torch.einsum("phk,ckl->cphl", ry, psf)
+        m = t.reshape(C * a * h, Wp) @ rx.reshape(b * w, Wp).T
+    else:
+        # columns first: (C Hp, Wp) x (Wp, b w), then (a h, Hp) x (C, Hp, b w). Fewer products where the
+        # scene is large (Table 3's 109 x 146 canvas at 24x32: 4.0 instead of 5.0 GMAC; 1.13x forward
+        # and backward on one AVX2 core), the same operator to float rounding.
+        u = psf.reshape(C * Hp, Wp) @ rx.reshape(b * w, Wp).T
+        m = ry.reshape(a * h, Hp) @ u.reshape(C, Hp, b * w)
     return m.reshape(C, a, h, b, w).transpose(2, 3).contiguous()
 
 
