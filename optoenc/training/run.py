@@ -93,6 +93,13 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
     once = bool(augs) and run.trainer.augment_draw == "once"
     precomputed = precomputes(run, encoder)
     stored = stores_transformed(run, encoder)
+    world = _world_size(run)
+    obj = adversary.from_config(run.privacy, encoder, splits.train[0].shape[1:])
+    # Resolved before the dataset is encoded: a trainer.loop that cannot apply is refused at once.
+    loop = resolve_loop(
+        run.trainer.loop, precomputed=precomputed, world=world, strategy=str(run.trainer.strategy),
+        precision=hardware.trainer_precision(run.trainer.precision, run.trainer.accelerator), adversary=obj is not None,
+    )
     bs, ebs = run.trainer.batch_size, run.trainer.eval_batch_size
     data = {"train": splits.train, "val": splits.val, "test": splits.test}
     canvas = canvas_for(run, encoder, splits.train[0].shape[-2:]) if augs else None
@@ -130,12 +137,6 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
             expect={k: len(v[1]) for k, v in data.items()},
         )
         data = {k: (emb[k], y) for k, (_x, y) in data.items()}
-    world = _world_size(run)
-    obj = adversary.from_config(run.privacy, encoder, splits.train[0].shape[1:])
-    loop = resolve_loop(
-        run.trainer.loop, precomputed=precomputed, world=world, strategy=str(run.trainer.strategy),
-        precision=hardware.trainer_precision(run.trainer.precision, run.trainer.accelerator), adversary=obj is not None,
-    )
     module = EncoderClassifier(
         encoder,
         decoder,
