@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Sequence
 
 from . import __version__
+from .training.quiet import quiet_lightning  # logging and warnings only: cheap at start-up
 from .errors import ConfigError, Interrupted, OptoencError
 from .plugins.registry import KINDS
 
@@ -162,12 +163,6 @@ def _load_yaml(path: str):
     return tree
 
 
-def _quiet_lightning() -> None:
-    from .training.quiet import quiet_lightning
-
-    quiet_lightning()
-
-
 def cmd_fit(args, extra) -> int:
     from .training.rundir import RUN_FILES, new_run_dir, remove_if_empty
 
@@ -194,7 +189,7 @@ def cmd_fit(args, extra) -> int:
         os.environ[_RUN_DIR_ENV] = str(run_dir)  # inherited by DDP workers (strategy=ddp re-runs this command)
     from .training.run import fit  # Lightning: imported once the settings check out (a refusal takes ~1 s, not ~5)
 
-    _quiet_lightning()
+    quiet_lightning()
     print(f"run directory: {run_dir}", file=sys.stderr)
     try:
         summary = fit(run, run_dir, resume=bool(args.resume))
@@ -219,7 +214,7 @@ def cmd_evaluate(args, extra) -> int:
 
     run_dir = Path(args.run)
     run = _run_config(args.run, extra)
-    _quiet_lightning()
+    quiet_lightning()
     metrics = evaluate(run, run_dir, args.command, args.which)
     print("  ".join(f"{k} {v:.4f}" for k, v in sorted(metrics.items())))
     return 0
@@ -343,7 +338,7 @@ def cmd_simulate(args, extra) -> int:
 def cmd_bench(args, extra) -> int:
     from .bench.command import main as bench_main
 
-    _quiet_lightning()  # bench loop trains runs
+    quiet_lightning()  # bench loop trains runs
     return bench_main(args)
 
 
@@ -390,7 +385,7 @@ def cmd_sweep(args, extra) -> int:
         print(f"{len(planned)} cells, {todo} to run, estimated {total / 60:.1f} min on one worker{wall} -> {out}")
         return 0
     if not args.collect:
-        _quiet_lightning()
+        quiet_lightning()
         from tqdm.auto import tqdm
 
         todo = [p for p in planned if p.todo]

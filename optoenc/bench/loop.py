@@ -69,7 +69,7 @@ def compare(cells=CELLS, epochs: int = 3, repeats: int = 2, threads: int = 1,
 
 def format_table(rows: list[dict], threads: int) -> str:
     """Markdown table, with the 50-epoch cell time each loop implies."""
-    out = [f"Epoch time, median (training 275 steps of 200 + validation 5,000 + test 10,000; {threads} thread(s)):", "",
+    out = [f"Epoch time, median (training, validation and test; {threads} thread(s)):", "",
            "| cell | loop=batch (s) | loop=epoch (s) | speed-up | 50 epochs: batch -> epoch (s) | same test accuracy |",
            "| --- | --- | --- | --- | --- | --- |"]
     for r in rows:

@@ -61,9 +61,9 @@ def batch_count(n: int, batch_size: int, limit: int | float = 1.0) -> int:
     :func:`~optoenc.training.loaders.make_loader` drops it); ``limit`` is Lightning's
     ``limit_train_batches`` (a fraction < 1, or a number of batches).
     """
-    nb = -(-n // batch_size)
-    if n > batch_size and n % batch_size == 1:
-        nb -= 1
+    from .loaders import drops_single_last
+
+    nb = -(-n // batch_size) - drops_single_last(n, batch_size)
     if isinstance(limit, float):
         return nb if limit >= 1.0 else max(1, int(nb * limit))
     return min(nb, int(limit))

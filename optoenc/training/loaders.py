@@ -7,7 +7,7 @@ from typing import Iterator
 import torch
 from torch.utils.data import BatchSampler, DataLoader, Dataset, Sampler, SequentialSampler, TensorDataset
 
-__all__ = ["EpochSampler", "BatchedTensors", "make_loader", "encode"]
+__all__ = ["EpochSampler", "BatchedTensors", "drops_single_last", "make_loader", "encode"]
 
 
 class EpochSampler(Sampler[int]):
@@ -59,6 +59,12 @@ class _EpochBatches(BatchSampler):
             self.sampler.set_epoch(epoch)
 
 
+def drops_single_last(n: int, batch_size: int) -> bool:
+    """Whether a shuffled epoch of ``n`` examples drops its last batch: it would hold one example, which
+    BatchNorm cannot normalise (``train_size = 201`` with batches of 200)."""
+    return n > batch_size and n % batch_size == 1
+
+
 def make_loader(
     x: torch.Tensor, y: torch.Tensor, batch_size: int, shuffle: bool, seed: int = 0, extra: tuple = (),
     batched: bool = True,
@@ -75,7 +81,7 @@ def make_loader(
     with batches of 200); which example is dropped changes every epoch.
     """
     n = len(x)
-    drop_last = shuffle and n > batch_size and n % batch_size == 1
+    drop_last = shuffle and drops_single_last(n, batch_size)
     sampler = EpochSampler(n, seed) if shuffle else None
     if batched:
         batches = _EpochBatches(sampler or SequentialSampler(range(n)), batch_size, drop_last)
