@@ -124,6 +124,9 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--epochs", type=int, default=3, help="loop: epochs per run (the first of each is warm-up, not timed)")
     b.add_argument("--spec", metavar="SPEC.yaml", help="steps: the sweep spec whose cells are timed")
     b.add_argument("--only", action="append", metavar="GLOB", help="steps: only the cells whose name matches (repeatable)")
+    b.add_argument("--against", default="support", metavar="PAIR",
+                   help="steps: the pair timed side by side (optoenc.bench.steps.AGAINST): support regions off/on (default), dense/banded operator "
+                        "build, glibc's allocator defaults / freed memory kept")
     sw = sub.add_parser("sweep", help="run a sweep of runs from a spec (resumable), collect CSV, tables and plots")
     sw.add_argument("spec", help="sweep spec YAML (base config, axes, cells, paper figures)")
     sw.add_argument("--out", metavar="DIR", help="sweep directory (default: sweeps/<spec name>)")
@@ -438,8 +441,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 0
         if extra and args.command not in ("fit", "validate", "test", "psf", "simulate", "export", "reconstruct", "privacy"):
             parser.error(f"unrecognized arguments: {' '.join(extra)}")
+        from .training.allocator import keep_freed_memory
         from .training.resume import raise_on_signals
 
+        keep_freed_memory()  # $OPTOENC_MALLOC (default keep): no page faults on every step's large tensors
         with raise_on_signals():
             return COMMANDS[args.command](args, extra)
     except OptoencError as err:

@@ -286,11 +286,15 @@ def test_bench_steps_times_both_settings_of_a_cell(tmp_path):
         "name: s\nbase: {dataset: {train_size: 400, val_size: 100, test_size: 200}, sensor: {embedding: [6, 8]},"
         " fidelity: {grid: [48, 64]}, trainer: {batch_size: 100}}\n"
         "axes: {encoder: [learned_slm], decoder: [logistic], augment: [rotate]}\n")
-    (row,) = steps.compare(spec, repeats=1, steps=1)
-    assert row["whole_s"] > 0 and row["support_s"] > 0 and row["epoch_steps"] == 4
-    assert row["speedup"] == pytest.approx(row["whole_s"] / row["support_s"])
-    assert row["support_epoch_s"] == pytest.approx(4 * row["support_s"])
-    assert "| base | " in steps.format_table([row])  # one value per axis: the cell is the spec's base
+    for against in steps.AGAINST:
+        (row,) = steps.compare(spec, repeats=1, steps=1, against=against)
+        assert row["reference_s"] > 0 and row["candidate_s"] > 0 and row["epoch_steps"] == 4
+        assert row["speedup"] == pytest.approx(row["reference_s"] / row["candidate_s"])
+        assert row["candidate_epoch_s"] == pytest.approx(4 * row["candidate_s"])
+        table = steps.format_table([row])
+        assert "| base | " in table and steps.AGAINST[against][1] in table  # the cell is the spec's base
+    with pytest.raises(ConfigError, match="--against"):
+        steps.compare(spec, against="nothing")
 
 
 @pytest.mark.filterwarnings("ignore")  # the 48 x 64 grid's sampling warning

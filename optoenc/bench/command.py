@@ -121,7 +121,8 @@ def main(args) -> int:
             raise ConfigError("--spec", None, "required by `optoenc bench steps` (a sweep spec, e.g. examples/paper/table3.yaml)")
         print(load_line("start"))
         with bar:
-            rows = steps.compare(args.spec, args.only, repeats=args.repeats, threads=threads[0], progress=progress)
+            rows = steps.compare(args.spec, args.only, repeats=args.repeats, threads=threads[0], progress=progress,
+                                against=args.against)
         if args.only and not rows:
             raise ConfigError("--only", ",".join(args.only), "matches no cell of the spec")
         print(steps.format_table(rows))

@@ -1,14 +1,22 @@
-"""Training steps of a sweep's cells with and without support regions, interleaved (``optoenc bench steps``).
+"""Training steps of a sweep's cells, a reference and a candidate interleaved (``optoenc bench steps``).
 
 For every cell of a spec (or those ``--only`` names), one optimiser step as
 training takes it (:func:`optoenc.sweep.estimate.training_step`: batch of
 real test digits, the cell's augmentations, encoder and decoder) is timed
-with :attr:`OpticalEncoder.support_regions` off (the whole scene's operator:
-the reference) and on, alternately, ``repeats`` times, so a change in the
-machine's load hits both alike. Reported per cell: the least disturbed
-(minimum) step of each, their ratio, and the epoch's training steps at
-that rate. Fixed encoders train on precomputed embeddings: both settings
-give the same step there.
+under a reference setting and a candidate one, alternately, ``repeats``
+times, so a change in the machine's load hits both alike. ``against``
+names the pair (:data:`AGAINST`):
+
+* ``support``: :attr:`OpticalEncoder.support_regions` off (the whole
+  scene's operator) -> on (the operator of the batch's support);
+* ``banded``: :attr:`OpticalEncoder.banded_operators` off (dense products)
+  -> on (the correlation tensors' zeros skipped);
+* ``malloc``: glibc's default allocator thresholds -> freed memory kept
+  (:mod:`optoenc.training.allocator`; what the CLI's processes run with).
+
+Reported per cell: the least disturbed (minimum) step of each, their ratio,
+and the epoch's training steps at that rate. Fixed encoders train on
+precomputed embeddings: every setting gives the same step there.
 """
 
 from __future__ import annotations
@@ -21,7 +29,29 @@ import torch
 
 from ..limits import torch_threads
 
-__all__ = ["compare", "format_table"]
+__all__ = ["compare", "format_table", "AGAINST"]
+
+
+def _set_support(enc, on: bool) -> None:
+    enc.support_regions = on
+
+
+def _set_banded(enc, on: bool) -> None:
+    enc.banded_operators = on
+
+
+def _set_malloc(enc, on: bool) -> None:
+    from ..training.allocator import keep_freed_memory
+
+    keep_freed_memory("keep" if on else "system")
+
+
+#: ``--against`` choices: (what is toggled, its reference label, its candidate label, setter(encoder, on)).
+AGAINST = {
+    "support": ("whole operator", "support region", _set_support),
+    "banded": ("dense build", "banded build", _set_banded),
+    "malloc": ("glibc defaults", "freed memory kept", _set_malloc),
+}
 
 
 def _timed(fn, n: int) -> float:
@@ -33,9 +63,15 @@ def _timed(fn, n: int) -> float:
     return best
 
 
-def compare(spec_path, only=None, repeats: int = 3, steps: int = 3, threads: int = 1, progress=None) -> list[dict]:
-    """Rows ``{"cell", "encoder", "whole_s", "support_s", "speedup", "epoch_steps", "whole_epoch_s",
-    "support_epoch_s"}`` for the cells of ``spec_path`` matching a glob of ``only``."""
+def compare(spec_path, only=None, repeats: int = 3, steps: int = 3, threads: int = 1, progress=None,
+            against: str = "support") -> list[dict]:
+    """Rows ``{"cell", "encoder", "against", "reference_s", "candidate_s", "speedup", "epoch_steps",
+    "reference_epoch_s", "candidate_epoch_s"}`` for the cells of ``spec_path`` matching a glob of ``only``."""
+    from ..errors import ConfigError
+
+    if against not in AGAINST:
+        raise ConfigError("--against", against, f"must be one of {', '.join(AGAINST)}")
+    toggle = AGAINST[against][2]
     from fnmatch import fnmatchcase
 
     from ..plugins import get_registry
@@ -63,25 +99,30 @@ def compare(spec_path, only=None, repeats: int = 3, steps: int = 3, threads: int
                 built = training_step(run, tuple(scenes.shape[1:]), scenes)
             enc = built.module.encoder
             built.step()  # warm-up: correlation tensors, allocator
-            whole, part = math.inf, math.inf
-            for _ in range(repeats):
-                enc.support_regions = False
-                whole = min(whole, _timed(built.step, steps))
-                enc.support_regions = True
-                part = min(part, _timed(built.step, steps))
+            ref, cand = math.inf, math.inf
+            try:
+                for _ in range(repeats):
+                    toggle(enc, False)
+                    ref = min(ref, _timed(built.step, steps))
+                    toggle(enc, True)
+                    cand = min(cand, _timed(built.step, steps))
+            finally:
+                toggle(enc, True)  # every setting compared is on by default
             n = math.ceil(len(data[key].train[0]) / run.trainer.batch_size)
             rows.append({
-                "cell": cell.name, "encoder": run.names["encoder"], "whole_s": whole, "support_s": part,
-                "speedup": whole / part, "epoch_steps": n, "whole_epoch_s": n * whole, "support_epoch_s": n * part,
+                "cell": cell.name, "encoder": run.names["encoder"], "against": against, "reference_s": ref,
+                "candidate_s": cand, "speedup": ref / cand, "epoch_steps": n, "reference_epoch_s": n * ref,
+                "candidate_epoch_s": n * cand,
             })
     return rows
 
 
 def format_table(rows: list[dict]) -> str:
     """A markdown table of :func:`compare`'s rows."""
-    out = ["| cell | step, whole operator (s) | step, support region (s) | speed-up | training steps of an epoch (s): whole -> support |",
+    ref, cand, _ = AGAINST[rows[0]["against"] if rows else "support"]
+    out = [f"| cell | step, {ref} (s) | step, {cand} (s) | speed-up | training steps of an epoch (s): {ref} -> {cand} |",
            "| --- | --- | --- | --- | --- |"]
     for r in rows:
-        out.append(f"| {r['cell']} | {r['whole_s']:.4f} | {r['support_s']:.4f} | {r['speedup']:.2f}x | "
-                   f"{r['whole_epoch_s']:.1f} -> {r['support_epoch_s']:.1f} |")
+        out.append(f"| {r['cell']} | {r['reference_s']:.4f} | {r['candidate_s']:.4f} | {r['speedup']:.2f}x | "
+                   f"{r['reference_epoch_s']:.1f} -> {r['candidate_epoch_s']:.1f} |")
     return "\n".join(out)

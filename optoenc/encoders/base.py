@@ -25,7 +25,7 @@ from .. import limits
 from ..errors import ConfigError, DataError
 from ..fidelity.knobs import FidelityConfig
 from ..settings import Documented, Settings, setting
-from . import imaging
+from . import banded, imaging
 from .geometry import Geometry, SceneConfig, SensorConfig
 
 __all__ = ["EncoderConfig", "OpticalEncoder"]
@@ -122,6 +122,10 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
     #: :meth:`measure` builds the operator of the batch's nonzero pixels only, where cheaper
     #: (:meth:`support_region`; exact); False: always the whole scene's.
     support_regions: bool = True
+    #: :meth:`operator` builds with the correlation tensors' zeros skipped where they are banded, and
+    #: :meth:`measure` applies it to the rows of the scenes that are nonzero (:mod:`optoenc.encoders.banded`;
+    #: exact); False: the dense products (the reference of ``optoenc bench steps --against banded``).
+    banded_operators: bool = True
 
     def lr_scales(self) -> dict[str, float]:
         """Learning rate of named parameters relative to ``trainer.encoder_lr`` (others: 1).
@@ -299,9 +303,24 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
             # Bounded: a learned d2 changes the height every step.
             stale = [k for k in self._op_cache if k[0] == "corr"]
             for k in stale[: max(0, len(stale) - _MAX_GEOMETRIES + 1)]:
-                del self._op_cache[k]
+                del self._op_cache[k], self._op_cache[("spans",) + k[1:]]
             self._op_cache[key] = (ry.to(device, self.operator_dtype), rx.to(device, self.operator_dtype))
+            # Where each flattened row's nonzero entries lie: the banded build's plan (imaging.scene_operator).
+            self._op_cache[("spans",) + key[1:]] = tuple(
+                banded.row_spans(r.reshape(-1, r.shape[-1])) for r in self._op_cache[key]
+            )
         return self._op_cache[key]
+
+    def _region_spans(self, scene_shape, height_px, device, region):
+        """The correlation tensors' row spans (:func:`banded.row_spans`) for the scene ``region`` (None: all)."""
+        key = ("spans", scene_shape, round(height_px, 9), self.operator_dtype, str(device), self.sensor.sampling)
+        (fy, ly), (fx, lx) = self._op_cache[key]
+        if region is None:
+            return (fy, ly), (fx, lx)
+        r0, r1, c0, c1 = region
+        h, w = scene_shape
+        cut = lambda t, n, i0, i1: t.reshape(-1, n)[:, i0:i1].reshape(-1)  # noqa: E731
+        return (cut(fy, h, r0, r1), cut(ly, h, r0, r1)), (cut(fx, w, c0, c1), cut(lx, w, c0, c1))
 
     def operator(self, scene_shape: tuple[int, int], height: float | None = None,
                  region: tuple[int, int, int, int] | None = None) -> torch.Tensor:
@@ -320,15 +339,17 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
                 changes).
         """
         psf = self.psf()
-        ry, rx = self._correlations(tuple(scene_shape), self.object_height_px(height), psf.device)
+        height_px = self.object_height_px(height)
+        ry, rx = self._correlations(tuple(scene_shape), height_px, psf.device)
+        spans = self._region_spans(tuple(scene_shape), height_px, psf.device, region) if self.banded_operators else False
         if region is not None:
             r0, r1, c0, c1 = region
-            return imaging.scene_operator(psf.to(self.operator_dtype), ry[:, r0:r1], rx[:, c0:c1])
+            return imaging.scene_operator(psf.to(self.operator_dtype), ry[:, r0:r1], rx[:, c0:c1], spans)
         key = ("op", tuple(scene_shape), height, self._state_key())
         cached = self._op_cache.get("op")
         if cached is not None and cached[0] == key:
             return cached[1]
-        op = imaging.scene_operator(psf.to(self.operator_dtype), ry, rx)
+        op = imaging.scene_operator(psf.to(self.operator_dtype), ry, rx, spans)
         self._op_cache["op"] = (key, op)
         return op
 
@@ -448,7 +469,7 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         if cut and self._cheaper_region(len(x), (H, W), height, region) == region:
             with torch.autocast(x.device.type, enabled=False):  # the optics keep their own precisions
                 op = self.operator((H, W), height, region)
-                out = imaging.apply_operator(op, x.to(self.optics_dtype).to(op.dtype)).to(self.optics_dtype)
+                out = imaging.apply_operator(op, x.to(self.optics_dtype).to(op.dtype), self.banded_operators).to(self.optics_dtype)
             return out.to(x.dtype)
         full = torch.nn.functional.pad(x, (c0, W - c0 - w, r0, H - r0 - h))
         return self.measure(full, height)
@@ -462,7 +483,7 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
             if region is not None:
                 r0, r1, c0, c1 = region
                 x = x[..., r0:r1, c0:c1]
-            out = imaging.apply_operator(op, x.to(op.dtype)).to(self.optics_dtype)
+            out = imaging.apply_operator(op, x.to(op.dtype), self.banded_operators).to(self.optics_dtype)
         elif method == "direct":
             s = self.subcells  # the same sub-pixel scene geometry as the operator
             grid = tuple(n * s for n in self.geometry.grid)

@@ -32,6 +32,7 @@ import torch.nn.functional as F
 
 from ..errors import ConfigError, PhysicsError
 from ..optics._common import next_fast_size
+from . import banded
 
 __all__ = [
     "area_matrix",
@@ -255,49 +256,118 @@ def correlation_tensor(box: torch.Tensor, place_m: torch.Tensor, n_psf: int, sub
     return out if sub == 1 else out.reshape(out.shape[0], out.shape[1], n_psf, sub).mean(-1)
 
 
-def scene_operator(psf: torch.Tensor, ry: torch.Tensor, rx: torch.Tensor) -> torch.Tensor:
+# Below this many multiply-adds (~1 ms of products on one core) the dense build is a few small products and
+# the banded one's plans and layout copies cost more than the zeros it skips (Table 1's 3x4: 0.90x).
+_MIN_BANDED_MACS = 20_000_000
+
+
+def scene_operator(psf: torch.Tensor, ry: torch.Tensor, rx: torch.Tensor, spans=None) -> torch.Tensor:
     """The linear map from scene pixels to embedding pixels for a given PSF.
 
     Args:
         psf: ``(C, Hp, Wp)`` intensity PSF.
         ry: ``(a, h, Hp)`` row correlation tensor (:func:`correlation_tensor`).
         rx: ``(b, w, Wp)`` column correlation tensor.
+        spans: optional ``(row_spans(ry), row_spans(rx))`` of the flattened
+            tensors (:func:`optoenc.encoders.banded.row_spans`), to skip
+            finding them; computed here when None. False: the dense
+            products whatever the tensors' band (a reference).
 
     Returns:
         ``(C, a, b, h, w)`` operator ``A`` with
         ``embedding[c, a, b] = sum_pq A[c, a, b, p, q] scene[c, p, q]``.
     """
     C, (a, h, Hp), (b, w, Wp) = psf.shape[0], ry.shape, rx.shape
+    ry2, rx2 = ry.reshape(a * h, Hp), rx.reshape(b * w, Wp)
+    rows_first = a * h * Wp * (Hp + b * w)  # the dense products' multiply-adds, per PSF channel
+    columns_first = Hp * b * w * (Wp + a * h)
+    if spans is not False and min(rows_first, columns_first) >= _MIN_BANDED_MACS and not (ry.requires_grad or rx.requires_grad):
+        sy, sx = spans if spans is not None else (banded.row_spans(ry2), banded.row_spans(rx2))
+        py, px = banded.BandPlan(*sy, Hp), banded.BandPlan(*sx, Wp)
+        # Small blocked products run at a fraction of one large product's rate (call overhead, short
+        # inner loops): banded only where it does at most half the multiply-adds (banded._MAX_FRACTION).
+        if px.macs_per_column * Hp + py.macs_per_column * b * w <= banded._MAX_FRACTION * min(rows_first, columns_first):
+            return _banded_operator(psf, ry2, rx2, py, px, (a, h), (b, w))
     # Two matrix products, in the order with fewer multiply-adds, then one transposing copy into the
     # (C, a, b, h, w) layout apply_operator reads as a matrix. einsum's own plan copied the operator
     # twice more (forward and backward; docs/benchmarks.md, "Operator layout").
-    if a * h * Wp * (Hp + b * w) <= Hp * b * w * (Wp + a * h):
+    if rows_first <= columns_first:
         # rows first: (C, a h, Wp), then (C a h, Wp) x (Wp, b w)
         t = torch.einsum("phk,ckl->cphl", ry, psf)
-        m = t.reshape(C * a * h, Wp) @ rx.reshape(b * w, Wp).T
+        m = t.reshape(C * a * h, Wp) @ rx2.T
     else:
         # columns first: (C Hp, Wp) x (Wp, b w), then (a h, Hp) x (C, Hp, b w). Fewer products where the
         # scene is large (Table 3's 109 x 146 canvas at 24x32: 4.0 instead of 5.0 GMAC; 1.13x forward
         # and backward on one AVX2 core), the same operator to float rounding.
-        u = psf.reshape(C * Hp, Wp) @ rx.reshape(b * w, Wp).T
-        m = ry.reshape(a * h, Hp) @ u.reshape(C, Hp, b * w)
+        u = psf.reshape(C * Hp, Wp) @ rx2.T
+        m = ry2 @ u.reshape(C, Hp, b * w)
     return m.reshape(C, a, h, b, w).transpose(2, 3).contiguous()
 
 
-def apply_operator(op: torch.Tensor, scene: torch.Tensor) -> torch.Tensor:
-    """Apply a ``(C, a, b, h, w)`` operator to ``(B, C or 1, h, w)`` scenes -> ``(B, C, a, b)``."""
+def _banded_operator(psf, ry2, rx2, py, px, ah, bw) -> torch.Tensor:
+    """:func:`scene_operator` with the correlation tensors' zeros skipped (:mod:`.banded`).
+
+    The correlation tensors are banded (a scene row reaches an embedding row through a few PSF rows
+    only): on Table 3's 24x32 canvas 6 % and 5 % of their entries lie in the blocks' spans, and the
+    build does 0.24 instead of 4.0 GMAC; the same operator up to the order of float sums. Columns
+    first: its product comes out as ``(a, h, C, b, w)``, whose copy into ``(C, a, b, h, w)`` keeps rows
+    of ``w`` intact. (Rows first would come out as ``(b, w, C, a, h)``, a copy that moves every entry
+    across the whole tensor: 69 + 84 ms forward and backward against 5 + 6 ms on Table 3's 12 M-entry
+    operator, one AVX2 core, more than the few multiply-adds it could save.)
+    """
+    (C, Hp, Wp), (a, h), (b, w) = psf.shape, ah, bw
+    u = banded.banded_mm(rx2, psf.permute(2, 0, 1).reshape(Wp, C * Hp), px)  # (b w, C Hp)
+    u = u.reshape(b * w, C, Hp).permute(2, 1, 0).reshape(Hp, C * b * w)
+    m = banded.banded_mm(ry2, u, py)  # (a h, C b w): (a, h, C, b, w)
+    return m.reshape(a, h, C, b, w).permute(2, 0, 3, 1, 4).contiguous()
+
+
+def apply_operator(op: torch.Tensor, scene: torch.Tensor, skip_zeros: bool = True) -> torch.Tensor:
+    """Apply a ``(C, a, b, h, w)`` operator to ``(B, C or 1, h, w)`` scenes -> ``(B, C, a, b)``.
+
+    ``skip_zeros``: gray scenes whose nonzero pixels lie in a few rows (a digit on an augmentation
+    canvas) multiply only those rows' part of the operator (exact); False: one dense product.
+    """
     C, a, b, h, w = op.shape
     flat = op.reshape(C, a * b, h * w)
     x = scene.reshape(scene.shape[0], scene.shape[1], h * w)
     # Explicit products with the operator on the right, transposed: their gradient with respect to the
     # operator comes out in the operator's own layout (einsum's transposed it, a copy of the whole operator).
     if x.shape[1] == 1:
-        out = x[:, 0] @ op.reshape(C * a * b, h * w).T
+        out = _sparse_scene_product(scene[:, 0], op.reshape(C * a * b, h * w)) if skip_zeros and not x.requires_grad else None
+        out = x[:, 0] @ op.reshape(C * a * b, h * w).T if out is None else out
     elif x.shape[1] == C:
         out = torch.bmm(x.transpose(0, 1), flat.transpose(1, 2)).transpose(0, 1)
     else:
         raise ConfigError("scene channels", x.shape[1], f"must be 1 or {C} (the PSF's channels)")
     return out.reshape(scene.shape[0], C, a, b)
+
+
+# The scenes' row scan (~0.5 ns a pixel) must be small next to the product it may save (C a b multiply-adds
+# a pixel at ~30 GMAC/s): below this many operator rows the dense product is taken at once.
+_MIN_SPARSE_ROWS = 128
+
+
+def _sparse_scene_product(x: torch.Tensor, opm: torch.Tensor) -> torch.Tensor | None:
+    """``x @ opm.T`` for ``(B, h, w)`` scenes that are zero outside a few rows each, or None if not cheaper.
+
+    A digit shifted on Table 3's canvas covers about a fifth of its rows: its nonzero pixels lie in one
+    contiguous run of the flattened scene. Sorted by where that run starts, consecutive scenes share most
+    of it, and each block of scenes multiplies only its run's columns of the operator
+    (:func:`banded.banded_mm`; exact, the same terms summed in another order). None where the operator
+    is small or the scenes fill too much of the canvas for that to save work.
+    """
+    B, h, w = x.shape
+    if B < 2 or opm.shape[0] < _MIN_SPARSE_ROWS or B * h * w * opm.shape[0] < _MIN_BANDED_MACS:
+        return None
+    first, last = banded.row_spans(x.abs().amax(-1))  # the nonzero rows of each scene
+    order = torch.argsort(first, stable=True)
+    plan = banded.BandPlan(first[order] * w, last[order] * w, h * w)
+    if not plan.banded:
+        return None
+    order = order.to(x.device)
+    out = banded.banded_mm(x.reshape(B, h * w).index_select(0, order), opm, plan, transposed=True)
+    return out.index_select(0, torch.argsort(order))
 
 
 def snr_sigma(signal: torch.Tensor, snr_db: float) -> torch.Tensor:

@@ -49,11 +49,13 @@ def run_cell(path: str | Path, threads: int | None = None) -> dict:
 
 
 def main(argv=None) -> int:
+    from ..training.allocator import keep_freed_memory
     from ..training.quiet import quiet_lightning
 
     args = list(sys.argv[1:] if argv is None else argv)
     quiet_lightning()
     try:
+        keep_freed_memory()  # as the CLI's processes ($OPTOENC_MALLOC)
         run_cell(args[0], int(args[1]) if len(args) > 1 else None)
     except Exception as err:  # the status file holds the details; one line for the sweep's log
         print(f"optoenc sweep cell failed: {type(err).__name__}: {err}", file=sys.stderr)

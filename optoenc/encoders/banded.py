@@ -1,0 +1,146 @@
+"""Products with a constant banded matrix: the scene operator's geometry factors.
+
+The 1-D correlation tensors that build the scene operator
+(:func:`optoenc.encoders.imaging.correlation_tensor`) are banded: a scene row
+``p`` reaches an embedding row ``a`` only through the few PSF rows ``k`` where
+the box of ``a`` overlaps the placed row ``p`` shifted by ``k``. On Table 3's
+augmentation canvas (24x32 embedding, 109 x 146 canvas, 288 x 384 PSF grid)
+about 4 % of the entries are nonzero, and a dense product spends 96 % of its
+multiply-adds on zeros.
+
+:class:`BandPlan` cuts the rows of such a matrix ``A`` into blocks of
+consecutive rows and records, for each block, the column range holding all of
+its nonzero entries. ``A @ B`` is then one small dense product per block,
+``A[r0:r1, k0:k1] @ B[k0:k1]``, which skips only exact zeros: the result is
+the dense product's up to the order of float sums. :func:`banded_mm` is that
+product with its gradient with respect to ``B`` (``A`` is geometry: constant).
+"""
+
+from __future__ import annotations
+
+import torch
+
+__all__ = ["BandPlan", "banded_mm", "row_spans"]
+
+# Candidate row-block sizes. Larger blocks amortise each product's call overhead and feed the GEMM
+# kernels more rows; smaller ones follow a sloping band more tightly. The plan takes the candidate with
+# the smallest modelled cost (multiply-adds plus a per-block overhead, below).
+_BLOCK_ROWS = (4, 8, 16, 32, 64)
+# Per-block overhead in multiply-adds per output column: one small product's call and kernel set-up is
+# worth about this many row-times-band-width units (measured on one AVX2 core: a (8 x 35) x (35 x 4672)
+# block runs at about half the throughput of a large product; 64 units keeps 8-row blocks where the band
+# is narrow and merges rows where it is not).
+_BLOCK_OVERHEAD = 64
+# Banded products are used when they do at most this fraction of the dense product's multiply-adds; above
+# it one large GEMM, which runs closer to the machine's peak, is as fast.
+_MAX_FRACTION = 0.5
+
+
+def row_spans(a: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """For each row of an ``(m, k)`` matrix, ``[first, last)``: the columns holding its nonzero entries.
+
+    An all-zero row gets the empty span ``[k, 0)``.
+    """
+    if a.dim() != 2:
+        raise ValueError(f"row_spans needs a matrix, got shape {tuple(a.shape)}")
+    k = a.shape[1]
+    nz = a != 0
+    cols = torch.arange(k, device=a.device)
+    first = torch.where(nz, cols, k).amin(dim=1)
+    last = torch.where(nz, cols, -1).amax(dim=1) + 1
+    return first.cpu(), last.cpu()
+
+
+class BandPlan:
+    """Row blocks of a constant ``(m, k)`` matrix and the column range of each block's nonzero entries.
+
+    Args:
+        first, last: ``(m,)`` per-row spans of the nonzero entries (:func:`row_spans`).
+        k: the matrix's number of columns.
+
+    Attributes:
+        blocks: ``[(r0, r1, k0, k1), ...]``: rows ``[r0, r1)`` are zero outside
+            columns ``[k0, k1)``; all-zero blocks are left out. Where blocks would
+            not save enough (:attr:`banded` False), one block: the whole matrix.
+        macs_per_column: multiply-adds per column of the right-hand factor.
+        banded: whether the plan skips zeros (False: one dense product).
+    """
+
+    def __init__(self, first: torch.Tensor, last: torch.Tensor, k: int):
+        m = int(first.numel())
+        self.shape = (m, int(k))
+        best = None
+        for rows in _BLOCK_ROWS:
+            n = -(-m // rows)
+            pad = n * rows - m
+            f = torch.cat([first, first.new_full((pad,), k)]).reshape(n, rows).amin(1)
+            l_ = torch.cat([last, last.new_zeros(pad)]).reshape(n, rows).amax(1)
+            live = l_ > f
+            sizes = torch.full((n,), rows)
+            sizes[-1] = rows - pad
+            macs = int((sizes * (l_ - f).clamp_min(0))[live].sum())
+            cost = macs + _BLOCK_OVERHEAD * int(live.sum())
+            if best is None or cost < best[0]:
+                best = (cost, rows, f, l_, live, macs)
+        cost, rows, f, l_, live, macs = best
+        self.banded = cost <= _MAX_FRACTION * m * k
+        if self.banded:
+            idx = torch.nonzero(live).flatten().tolist()
+            f, l_ = f.tolist(), l_.tolist()
+            self.blocks = [(i * rows, min(m, (i + 1) * rows), f[i], l_[i]) for i in idx]
+            self.macs_per_column = macs
+        else:
+            self.blocks = [(0, m, 0, int(k))]
+            self.macs_per_column = m * int(k)
+        self.covers_all_rows = sum(r1 - r0 for r0, r1, _, _ in self.blocks) == m
+
+    @classmethod
+    def of(cls, a: torch.Tensor) -> "BandPlan":
+        """The plan of matrix ``a``."""
+        return cls(*row_spans(a), a.shape[1])
+
+
+class _BandedMM(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, b, a, plan, transposed):
+        n = b.shape[0] if transposed else b.shape[1]
+        out = (b.new_empty if plan.covers_all_rows else b.new_zeros)(a.shape[0], n)
+        for r0, r1, k0, k1 in plan.blocks:
+            torch.mm(a[r0:r1, k0:k1], b[:, k0:k1].T if transposed else b[k0:k1], out=out[r0:r1])
+        ctx.save_for_backward(a)
+        ctx.plan, ctx.transposed, ctx.b_shape = plan, transposed, b.shape
+        return out
+
+    @staticmethod
+    def backward(ctx, grad):
+        (a,) = ctx.saved_tensors
+        gb = None
+        if ctx.needs_input_grad[0]:
+            gb = grad.new_zeros(ctx.b_shape)
+            grad = grad.contiguous()
+            for r0, r1, k0, k1 in ctx.plan.blocks:
+                if ctx.transposed:
+                    gb[:, k0:k1].addmm_(grad[r0:r1].T, a[r0:r1, k0:k1])
+                else:
+                    gb[k0:k1].addmm_(a[r0:r1, k0:k1].T, grad[r0:r1])
+        return gb, None, None, None
+
+
+def banded_mm(a: torch.Tensor, b: torch.Tensor, plan: BandPlan | None = None, *, transposed: bool = False) -> torch.Tensor:
+    """``a @ b`` for a constant banded ``(m, k)`` matrix ``a`` and a ``(k, n)`` matrix ``b``.
+
+    Differentiable with respect to ``b`` only (``a`` must not require a
+    gradient). ``plan`` is ``BandPlan.of(a)``, computed here when not given.
+    Rows of ``a`` that are all zero give zero rows. ``transposed``: ``b`` is
+    given as its ``(n, k)`` transpose and ``a @ b.T`` is computed without
+    copying it (the scene operator's layout, :func:`imaging.apply_operator`).
+    """
+    if a.requires_grad:
+        raise ValueError("banded_mm: the banded factor is a constant; it must not require a gradient")
+    k = b.shape[-1] if transposed else b.shape[0]
+    if a.dim() != 2 or b.dim() != 2 or a.shape[1] != k:
+        raise ValueError(f"banded_mm: shapes {tuple(a.shape)} and {tuple(b.shape)}{' (transposed)' if transposed else ''} do not multiply")
+    plan = BandPlan.of(a) if plan is None else plan
+    if plan.shape != tuple(a.shape):
+        raise ValueError(f"banded_mm: the plan is for a {plan.shape} matrix, not {tuple(a.shape)}")
+    return _BandedMM.apply(b.contiguous(), a, plan, transposed)

@@ -1,0 +1,157 @@
+"""Products with a constant banded matrix (the scene operator's correlation tensors skip their zeros)."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from optoenc.encoders import banded
+from optoenc.encoders import imaging as im
+
+DT = torch.float64
+
+
+def band_matrix(m: int, k: int, width: int, slope: float, g: torch.Generator, zero_rows=()) -> torch.Tensor:
+    """An (m, k) matrix whose row i is nonzero on ``width`` columns from ``round(i * slope)`` (clipped)."""
+    a = torch.zeros(m, k, dtype=DT)
+    for i in range(m):
+        k0 = min(k - 1, int(round(i * slope)))
+        a[i, k0 : k0 + width] = torch.rand(min(width, k - k0), generator=g, dtype=DT) + 0.1
+    for i in zero_rows:
+        a[i] = 0
+    return a
+
+
+def test_plan_blocks_hold_every_nonzero_entry_and_skip_most_zeros():
+    g = torch.Generator().manual_seed(0)
+    a = band_matrix(300, 120, 5, 0.37, g, zero_rows=(7, 150, 151))
+    plan = banded.BandPlan.of(a)
+    assert plan.banded
+    covered = torch.zeros_like(a, dtype=torch.bool)
+    for r0, r1, k0, k1 in plan.blocks:
+        covered[r0:r1, k0:k1] = True
+    assert bool(covered[a != 0].all())  # no nonzero entry outside a block: the product is exact
+    assert plan.macs_per_column == int(covered.sum())
+    assert plan.macs_per_column < 0.2 * a.numel()  # a 5-wide band sloping 0.37 a row: blocks of a few rows
+
+
+def test_dense_matrix_gets_one_dense_block():
+    a = torch.rand(40, 30, dtype=DT) + 0.1
+    plan = banded.BandPlan.of(a)
+    assert not plan.banded and plan.blocks == [(0, 40, 0, 30)] and plan.macs_per_column == 1200
+
+
+@pytest.mark.parametrize("zero_rows", [(), (0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 100)])
+def test_banded_mm_is_the_dense_product_and_its_gradient(zero_rows):
+    # Float64: the blocked product sums the same nonzero terms in another order, so it agrees to ~1e-16
+    # relative; 1e-12 leaves room for any BLAS blocking and is far below a missed band entry (~0.1).
+    g = torch.Generator().manual_seed(1)
+    a = band_matrix(200, 90, 7, 0.42, g, zero_rows=zero_rows)
+    b = torch.rand(90, 13, generator=g, dtype=DT, requires_grad=True)
+    plan = banded.BandPlan.of(a)
+    assert plan.banded and (not zero_rows or not plan.covers_all_rows)  # the all-zero block is left out
+    out = banded.banded_mm(a, b, plan)
+    torch.testing.assert_close(out, a @ b, rtol=1e-12, atol=1e-12)
+    assert bool((out[list(zero_rows)] == 0).all())
+    assert torch.autograd.gradcheck(lambda x: banded.banded_mm(a, x, plan), (b,))
+
+
+def test_banded_mm_refuses_a_learned_band_or_a_wrong_plan():
+    a = torch.eye(5, dtype=DT)
+    with pytest.raises(ValueError, match="constant"):
+        banded.banded_mm(a.clone().requires_grad_(), torch.rand(5, 2, dtype=DT))
+    with pytest.raises(ValueError, match="plan"):
+        banded.banded_mm(a, torch.rand(5, 2, dtype=DT), banded.BandPlan.of(torch.eye(6, dtype=DT)))
+
+
+def _canvas_correlations(grid, scene, emb, height):
+    py, px = im.placement_matrices(scene, grid, height)
+    ry = im.correlation_tensor(im.box_matrix(grid[0], emb[0]), py, grid[0])
+    rx = im.correlation_tensor(im.box_matrix(grid[1], emb[1]), px, grid[1])
+    return ry, rx
+
+
+@pytest.mark.parametrize(
+    "grid,scene,emb,height,rows_banded",
+    [
+        ((96, 128), (60, 70), (8, 10), 90.0, True),  # a canvas larger than the grid's embedding pixels (Table 3)
+        ((48, 240), (6, 120), (4, 24), 20.0, False),  # few scene rows: the row factor is one dense block
+    ],
+)
+def test_banded_scene_operator_is_the_dense_one_and_the_fine_grid_pipeline(grid, scene, emb, height, rows_banded, monkeypatch):
+    # Real correlation tensors of a scene much larger than an embedding pixel are banded; the banded build
+    # must give the dense build's operator and gradient (float64: same terms, other order of sums; 1e-12)
+    # and the fine-grid pipeline's embeddings (place -> FFT convolution -> integrate; rounding ~1e-14).
+    import warnings
+
+    warnings.simplefilter("ignore")  # the canvas may overfill the field of view: cropping is part of the map
+    g = torch.Generator().manual_seed(4)
+    ry, rx = _canvas_correlations(grid, scene, emb, height)
+    psf = torch.rand(2, *grid, generator=g, dtype=DT, requires_grad=True)
+    calls = []
+    real = banded.banded_mm
+    monkeypatch.setattr(banded, "banded_mm", lambda a, b, plan=None: calls.append(a.shape) or real(a, b, plan))
+    monkeypatch.setattr(im, "_MIN_BANDED_MACS", 0)  # these small cases stand for large ones
+    op = im.scene_operator(psf, ry, rx)
+    assert len(calls) == 2, "the banded build was not taken"
+    assert calls[0] == (rx.shape[0] * rx.shape[1], rx.shape[2])  # columns first (the cheap layout copy)
+    assert banded.BandPlan.of(ry.reshape(-1, ry.shape[-1])).banded == rows_banded  # the cases cover both plans
+    dense = im.scene_operator(psf, ry.detach().clone().requires_grad_(), rx)  # dense path
+    assert len(calls) == 2  # a correlation tensor that requires a gradient takes the dense products
+    torch.testing.assert_close(op, dense, rtol=1e-12, atol=1e-12)
+    x = torch.rand(3, 1, *scene, generator=g, dtype=DT)
+    ref = im.integrate(im.fft_convolve(im.place(x, grid, height), psf), emb)
+    torch.testing.assert_close(im.apply_operator(op, x), ref, rtol=1e-11, atol=1e-11)
+    w = torch.randn(3, 2, *emb, generator=g, dtype=DT)
+    (g_band,) = torch.autograd.grad((im.apply_operator(op, x) * w).sum(), psf)
+    (g_ref,) = torch.autograd.grad((ref * w).sum(), psf)
+    torch.testing.assert_close(g_band, g_ref, rtol=1e-10, atol=1e-12)
+
+
+def test_sparse_scene_product_is_the_dense_apply_and_its_gradient(monkeypatch):
+    # Digits at random positions on a canvas (zero elsewhere), one all-zero scene: the operator applied to
+    # their nonzero rows only must equal the dense product and give the same gradient with respect to the
+    # operator (float64; same terms in another order: 1e-12), with the scenes' order restored.
+    g = torch.Generator().manual_seed(5)
+    B, (C, a, b), (h, w) = 9, (1, 16, 10), (40, 30)
+    x = torch.zeros(B, 1, h, w, dtype=DT)
+    for i in range(B - 1):
+        r, c = (int(v) for v in torch.randint(0, 32, (2,), generator=g))
+        x[i, 0, r : r + 8, min(c, 22) : min(c, 22) + 8] = torch.rand(8, 8, generator=g, dtype=DT)
+    op = torch.rand(C, a, b, h, w, generator=g, dtype=DT, requires_grad=True)
+    calls = []
+    real = banded.banded_mm
+    monkeypatch.setattr(banded, "banded_mm", lambda *args, **kw: calls.append(1) or real(*args, **kw))
+    monkeypatch.setattr(im, "_MIN_BANDED_MACS", 0)  # this small case stands for a large one
+    out = im.apply_operator(op, x)
+    assert calls, "the sparse product was not taken"
+    dense = im.apply_operator(op, x, skip_zeros=False)
+    assert len(calls) == 1
+    torch.testing.assert_close(out, dense, rtol=1e-12, atol=1e-12)
+    assert bool((out[B - 1] == 0).all())
+    wgt = torch.randn_like(dense)
+    (g1,) = torch.autograd.grad((out * wgt).sum(), op)
+    (g2,) = torch.autograd.grad((dense * wgt).sum(), op)
+    torch.testing.assert_close(g1, g2, rtol=1e-12, atol=1e-12)
+    small = torch.rand(1, 16, 2, 40, 30, dtype=DT, requires_grad=True)  # gradcheck on a 160-row operator
+    assert torch.autograd.gradcheck(lambda o: im.apply_operator(o, x[:3]), (small,), fast_mode=True)
+    xg = x.clone().requires_grad_()  # a scene that is learned (an attack's reconstruction): the dense product
+    n = len(calls)
+    im.apply_operator(op, xg)
+    assert len(calls) == n
+
+
+def test_small_products_stay_dense(monkeypatch):
+    # Below _MIN_BANDED_MACS the plans and copies cost more than the zeros skipped: the dense products, for
+    # a case that is banded (the same case takes the banded build with the gate at 0, above).
+    calls = []
+    real = banded.banded_mm
+    monkeypatch.setattr(banded, "banded_mm", lambda *args, **kw: calls.append(1) or real(*args, **kw))
+    monkeypatch.setattr(im, "_MIN_BANDED_MACS", 10**9)
+    ry, rx = _canvas_correlations((96, 128), (60, 70), (8, 10), 90.0)
+    assert banded.BandPlan.of(rx.reshape(-1, 128)).banded
+    op = im.scene_operator(torch.rand(1, 96, 128, dtype=DT), ry, rx)
+    x = torch.zeros(4, 1, 60, 70, dtype=DT)
+    x[:, :, :5] = 1
+    im.apply_operator(op, x)
+    assert not calls
