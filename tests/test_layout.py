@@ -36,6 +36,7 @@ LAYERS: dict[str, int] = {
     # 2. what every encoder shares: scene and sensor, imaging steps, measured PSFs, the fidelity knobs
     "optoenc.encoders.geometry": 2,
     "optoenc.encoders.imaging": 2,
+    "optoenc.encoders.banded": 2,
     "optoenc.encoders.psf_files": 2,
     "optoenc.fidelity": 2,
     "optoenc.fidelity.knobs": 2,

@@ -26,13 +26,15 @@ __all__ = ["BandPlan", "banded_mm", "row_spans"]
 # kernels more rows; smaller ones follow a sloping band more tightly. The plan takes the candidate with
 # the smallest modelled cost (multiply-adds plus a per-block overhead, below).
 _BLOCK_ROWS = (4, 8, 16, 32, 64)
-# Per-block overhead in multiply-adds per output column: one small product's call and kernel set-up is
-# worth about this many row-times-band-width units (measured on one AVX2 core: a (8 x 35) x (35 x 4672)
-# block runs at about half the throughput of a large product; 64 units keeps 8-row blocks where the band
-# is narrow and merges rows where it is not).
-_BLOCK_OVERHEAD = 64
-# Banded products are used when they do at most this fraction of the dense product's multiply-adds; above
-# it one large GEMM, which runs closer to the machine's peak, is as fast.
+# Per-block overhead, in multiply-adds: one small product's call, slicing and kernel set-up, forward and
+# backward, take ~15 us on one AVX2 core (Table 3's column factor, 913 blocks of 4 rows: 9.0 ms forward
+# for 24 M multiply-adds), ~200,000 multiply-adds of a forward product at ~30 GMAC/s (its backward doing
+# as many again). On Table 3's canvas (4,672 columns in the row factor's product) that is 43 row-times-
+# band-width units a block, and 4-row blocks win; a narrow product (Table 1's 28 x 28 digit at 12x16:
+# 448 columns) needs wide blocks or the dense product.
+_BLOCK_OVERHEAD = 200_000
+# Banded products are used when their modelled cost is at most this fraction of the dense product's
+# multiply-adds: one large GEMM runs closer to the machine's peak than many small ones.
 _MAX_FRACTION = 0.5
 
 
@@ -57,47 +59,49 @@ class BandPlan:
     Args:
         first, last: ``(m,)`` per-row spans of the nonzero entries (:func:`row_spans`).
         k: the matrix's number of columns.
+        n: the number of columns of the factor it multiplies (the work per row-times-column unit).
 
     Attributes:
         blocks: ``[(r0, r1, k0, k1), ...]``: rows ``[r0, r1)`` are zero outside
             columns ``[k0, k1)``; all-zero blocks are left out. Where blocks would
             not save enough (:attr:`banded` False), one block: the whole matrix.
-        macs_per_column: multiply-adds per column of the right-hand factor.
+        macs: multiply-adds of the product (``n sum (r1 - r0) (k1 - k0)``).
+        cost: ``macs`` plus the per-block overhead, in multiply-adds.
         banded: whether the plan skips zeros (False: one dense product).
     """
 
-    def __init__(self, first: torch.Tensor, last: torch.Tensor, k: int):
-        m = int(first.numel())
-        self.shape = (m, int(k))
+    def __init__(self, first: torch.Tensor, last: torch.Tensor, k: int, n: int):
+        m, k, n = int(first.numel()), int(k), int(n)
+        self.shape = (m, k)
         best = None
         for rows in _BLOCK_ROWS:
-            n = -(-m // rows)
-            pad = n * rows - m
-            f = torch.cat([first, first.new_full((pad,), k)]).reshape(n, rows).amin(1)
-            l_ = torch.cat([last, last.new_zeros(pad)]).reshape(n, rows).amax(1)
+            nb = -(-m // rows)
+            pad = nb * rows - m
+            f = torch.cat([first, first.new_full((pad,), k)]).reshape(nb, rows).amin(1)
+            l_ = torch.cat([last, last.new_zeros(pad)]).reshape(nb, rows).amax(1)
             live = l_ > f
-            sizes = torch.full((n,), rows)
+            sizes = torch.full((nb,), rows)
             sizes[-1] = rows - pad
-            macs = int((sizes * (l_ - f).clamp_min(0))[live].sum())
+            macs = n * int((sizes * (l_ - f).clamp_min(0))[live].sum())
             cost = macs + _BLOCK_OVERHEAD * int(live.sum())
             if best is None or cost < best[0]:
                 best = (cost, rows, f, l_, live, macs)
         cost, rows, f, l_, live, macs = best
-        self.banded = cost <= _MAX_FRACTION * m * k
+        self.banded = cost <= _MAX_FRACTION * m * k * n
         if self.banded:
             idx = torch.nonzero(live).flatten().tolist()
             f, l_ = f.tolist(), l_.tolist()
             self.blocks = [(i * rows, min(m, (i + 1) * rows), f[i], l_[i]) for i in idx]
-            self.macs_per_column = macs
+            self.macs, self.cost = macs, cost
         else:
-            self.blocks = [(0, m, 0, int(k))]
-            self.macs_per_column = m * int(k)
+            self.blocks = [(0, m, 0, k)]
+            self.macs = self.cost = m * k * n
         self.covers_all_rows = sum(r1 - r0 for r0, r1, _, _ in self.blocks) == m
 
     @classmethod
-    def of(cls, a: torch.Tensor) -> "BandPlan":
-        """The plan of matrix ``a``."""
-        return cls(*row_spans(a), a.shape[1])
+    def of(cls, a: torch.Tensor, n: int) -> "BandPlan":
+        """The plan of matrix ``a`` multiplying a factor of ``n`` columns."""
+        return cls(*row_spans(a), a.shape[1], n)
 
 
 class _BandedMM(torch.autograd.Function):
@@ -130,7 +134,7 @@ def banded_mm(a: torch.Tensor, b: torch.Tensor, plan: BandPlan | None = None, *,
     """``a @ b`` for a constant banded ``(m, k)`` matrix ``a`` and a ``(k, n)`` matrix ``b``.
 
     Differentiable with respect to ``b`` only (``a`` must not require a
-    gradient). ``plan`` is ``BandPlan.of(a)``, computed here when not given.
+    gradient). ``plan`` is ``BandPlan.of(a, n)``, computed here when not given.
     Rows of ``a`` that are all zero give zero rows. ``transposed``: ``b`` is
     given as its ``(n, k)`` transpose and ``a @ b.T`` is computed without
     copying it (the scene operator's layout, :func:`imaging.apply_operator`).
@@ -140,7 +144,7 @@ def banded_mm(a: torch.Tensor, b: torch.Tensor, plan: BandPlan | None = None, *,
     k = b.shape[-1] if transposed else b.shape[0]
     if a.dim() != 2 or b.dim() != 2 or a.shape[1] != k:
         raise ValueError(f"banded_mm: shapes {tuple(a.shape)} and {tuple(b.shape)}{' (transposed)' if transposed else ''} do not multiply")
-    plan = BandPlan.of(a) if plan is None else plan
+    plan = BandPlan.of(a, b.shape[0] if transposed else b.shape[1]) if plan is None else plan
     if plan.shape != tuple(a.shape):
         raise ValueError(f"banded_mm: the plan is for a {plan.shape} matrix, not {tuple(a.shape)}")
     return _BandedMM.apply(b.contiguous(), a, plan, transposed)

@@ -283,10 +283,10 @@ def scene_operator(psf: torch.Tensor, ry: torch.Tensor, rx: torch.Tensor, spans=
     columns_first = Hp * b * w * (Wp + a * h)
     if spans is not False and min(rows_first, columns_first) >= _MIN_BANDED_MACS and not (ry.requires_grad or rx.requires_grad):
         sy, sx = spans if spans is not None else (banded.row_spans(ry2), banded.row_spans(rx2))
-        py, px = banded.BandPlan(*sy, Hp), banded.BandPlan(*sx, Wp)
+        py, px = banded.BandPlan(*sy, Hp, C * b * w), banded.BandPlan(*sx, Wp, C * Hp)
         # Small blocked products run at a fraction of one large product's rate (call overhead, short
-        # inner loops): banded only where it does at most half the multiply-adds (banded._MAX_FRACTION).
-        if px.macs_per_column * Hp + py.macs_per_column * b * w <= banded._MAX_FRACTION * min(rows_first, columns_first):
+        # inner loops): banded only where it costs at most half the multiply-adds (banded._MAX_FRACTION).
+        if py.cost + px.cost <= banded._MAX_FRACTION * C * min(rows_first, columns_first):
             return _banded_operator(psf, ry2, rx2, py, px, (a, h), (b, w))
     # Two matrix products, in the order with fewer multiply-adds, then one transposing copy into the
     # (C, a, b, h, w) layout apply_operator reads as a matrix. einsum's own plan copied the operator
@@ -362,7 +362,7 @@ def _sparse_scene_product(x: torch.Tensor, opm: torch.Tensor) -> torch.Tensor | 
         return None
     first, last = banded.row_spans(x.abs().amax(-1))  # the nonzero rows of each scene
     order = torch.argsort(first, stable=True)
-    plan = banded.BandPlan(first[order] * w, last[order] * w, h * w)
+    plan = banded.BandPlan(first[order] * w, last[order] * w, h * w, opm.shape[0])
     if not plan.banded:
         return None
     order = order.to(x.device)

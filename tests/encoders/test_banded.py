@@ -11,6 +11,13 @@ from optoenc.encoders import imaging as im
 DT = torch.float64
 
 
+@pytest.fixture
+def small_is_large(monkeypatch):
+    """The cases here are small; they stand for large ones: no per-block or minimum-size overheads."""
+    monkeypatch.setattr(banded, "_BLOCK_OVERHEAD", 0)
+    monkeypatch.setattr(im, "_MIN_BANDED_MACS", 0)
+
+
 def band_matrix(m: int, k: int, width: int, slope: float, g: torch.Generator, zero_rows=()) -> torch.Tensor:
     """An (m, k) matrix whose row i is nonzero on ``width`` columns from ``round(i * slope)`` (clipped)."""
     a = torch.zeros(m, k, dtype=DT)
@@ -22,33 +29,33 @@ def band_matrix(m: int, k: int, width: int, slope: float, g: torch.Generator, ze
     return a
 
 
-def test_plan_blocks_hold_every_nonzero_entry_and_skip_most_zeros():
+def test_plan_blocks_hold_every_nonzero_entry_and_skip_most_zeros(small_is_large):
     g = torch.Generator().manual_seed(0)
     a = band_matrix(300, 120, 5, 0.37, g, zero_rows=(7, 150, 151))
-    plan = banded.BandPlan.of(a)
+    plan = banded.BandPlan.of(a, 1)
     assert plan.banded
     covered = torch.zeros_like(a, dtype=torch.bool)
     for r0, r1, k0, k1 in plan.blocks:
         covered[r0:r1, k0:k1] = True
     assert bool(covered[a != 0].all())  # no nonzero entry outside a block: the product is exact
-    assert plan.macs_per_column == int(covered.sum())
-    assert plan.macs_per_column < 0.2 * a.numel()  # a 5-wide band sloping 0.37 a row: blocks of a few rows
+    assert plan.macs == int(covered.sum()) == plan.cost
+    assert plan.macs < 0.2 * a.numel()  # a 5-wide band sloping 0.37 a row: blocks of a few rows
 
 
-def test_dense_matrix_gets_one_dense_block():
+def test_dense_matrix_gets_one_dense_block(small_is_large):
     a = torch.rand(40, 30, dtype=DT) + 0.1
-    plan = banded.BandPlan.of(a)
-    assert not plan.banded and plan.blocks == [(0, 40, 0, 30)] and plan.macs_per_column == 1200
+    plan = banded.BandPlan.of(a, 7)
+    assert not plan.banded and plan.blocks == [(0, 40, 0, 30)] and plan.macs == 40 * 30 * 7
 
 
 @pytest.mark.parametrize("zero_rows", [(), (0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 100)])
-def test_banded_mm_is_the_dense_product_and_its_gradient(zero_rows):
+def test_banded_mm_is_the_dense_product_and_its_gradient(zero_rows, small_is_large):
     # Float64: the blocked product sums the same nonzero terms in another order, so it agrees to ~1e-16
     # relative; 1e-12 leaves room for any BLAS blocking and is far below a missed band entry (~0.1).
     g = torch.Generator().manual_seed(1)
     a = band_matrix(200, 90, 7, 0.42, g, zero_rows=zero_rows)
     b = torch.rand(90, 13, generator=g, dtype=DT, requires_grad=True)
-    plan = banded.BandPlan.of(a)
+    plan = banded.BandPlan.of(a, 13)
     assert plan.banded and (not zero_rows or not plan.covers_all_rows)  # the all-zero block is left out
     out = banded.banded_mm(a, b, plan)
     torch.testing.assert_close(out, a @ b, rtol=1e-12, atol=1e-12)
@@ -61,7 +68,7 @@ def test_banded_mm_refuses_a_learned_band_or_a_wrong_plan():
     with pytest.raises(ValueError, match="constant"):
         banded.banded_mm(a.clone().requires_grad_(), torch.rand(5, 2, dtype=DT))
     with pytest.raises(ValueError, match="plan"):
-        banded.banded_mm(a, torch.rand(5, 2, dtype=DT), banded.BandPlan.of(torch.eye(6, dtype=DT)))
+        banded.banded_mm(a, torch.rand(5, 2, dtype=DT), banded.BandPlan.of(torch.eye(6, dtype=DT), 2))
 
 
 def _canvas_correlations(grid, scene, emb, height):
@@ -72,13 +79,14 @@ def _canvas_correlations(grid, scene, emb, height):
 
 
 @pytest.mark.parametrize(
-    "grid,scene,emb,height,rows_banded",
+    "grid,scene,emb,height",
     [
-        ((96, 128), (60, 70), (8, 10), 90.0, True),  # a canvas larger than the grid's embedding pixels (Table 3)
-        ((48, 240), (6, 120), (4, 24), 20.0, False),  # few scene rows: the row factor is one dense block
+        ((96, 128), (60, 70), (8, 10), 90.0),  # a canvas larger than the grid's embedding pixels (Table 3)
+        ((48, 240), (6, 120), (4, 24), 20.0),  # few scene rows, many columns
     ],
 )
-def test_banded_scene_operator_is_the_dense_one_and_the_fine_grid_pipeline(grid, scene, emb, height, rows_banded, monkeypatch):
+def test_banded_scene_operator_is_the_dense_one_and_the_fine_grid_pipeline(grid, scene, emb, height, monkeypatch,
+                                                                         small_is_large):
     # Real correlation tensors of a scene much larger than an embedding pixel are banded; the banded build
     # must give the dense build's operator and gradient (float64: same terms, other order of sums; 1e-12)
     # and the fine-grid pipeline's embeddings (place -> FFT convolution -> integrate; rounding ~1e-14).
@@ -91,11 +99,9 @@ def test_banded_scene_operator_is_the_dense_one_and_the_fine_grid_pipeline(grid,
     calls = []
     real = banded.banded_mm
     monkeypatch.setattr(banded, "banded_mm", lambda a, b, plan=None: calls.append(a.shape) or real(a, b, plan))
-    monkeypatch.setattr(im, "_MIN_BANDED_MACS", 0)  # these small cases stand for large ones
     op = im.scene_operator(psf, ry, rx)
     assert len(calls) == 2, "the banded build was not taken"
     assert calls[0] == (rx.shape[0] * rx.shape[1], rx.shape[2])  # columns first (the cheap layout copy)
-    assert banded.BandPlan.of(ry.reshape(-1, ry.shape[-1])).banded == rows_banded  # the cases cover both plans
     dense = im.scene_operator(psf, ry.detach().clone().requires_grad_(), rx)  # dense path
     assert len(calls) == 2  # a correlation tensor that requires a gradient takes the dense products
     torch.testing.assert_close(op, dense, rtol=1e-12, atol=1e-12)
@@ -108,7 +114,7 @@ def test_banded_scene_operator_is_the_dense_one_and_the_fine_grid_pipeline(grid,
     torch.testing.assert_close(g_band, g_ref, rtol=1e-10, atol=1e-12)
 
 
-def test_sparse_scene_product_is_the_dense_apply_and_its_gradient(monkeypatch):
+def test_sparse_scene_product_is_the_dense_apply_and_its_gradient(monkeypatch, small_is_large):
     # Digits at random positions on a canvas (zero elsewhere), one all-zero scene: the operator applied to
     # their nonzero rows only must equal the dense product and give the same gradient with respect to the
     # operator (float64; same terms in another order: 1e-12), with the scenes' order restored.
@@ -122,7 +128,6 @@ def test_sparse_scene_product_is_the_dense_apply_and_its_gradient(monkeypatch):
     calls = []
     real = banded.banded_mm
     monkeypatch.setattr(banded, "banded_mm", lambda *args, **kw: calls.append(1) or real(*args, **kw))
-    monkeypatch.setattr(im, "_MIN_BANDED_MACS", 0)  # this small case stands for a large one
     out = im.apply_operator(op, x)
     assert calls, "the sparse product was not taken"
     dense = im.apply_operator(op, x, skip_zeros=False)
@@ -141,7 +146,7 @@ def test_sparse_scene_product_is_the_dense_apply_and_its_gradient(monkeypatch):
     assert len(calls) == n
 
 
-def test_small_products_stay_dense(monkeypatch):
+def test_small_products_stay_dense(monkeypatch, small_is_large):
     # Below _MIN_BANDED_MACS the plans and copies cost more than the zeros skipped: the dense products, for
     # a case that is banded (the same case takes the banded build with the gate at 0, above).
     calls = []
@@ -149,9 +154,18 @@ def test_small_products_stay_dense(monkeypatch):
     monkeypatch.setattr(banded, "banded_mm", lambda *args, **kw: calls.append(1) or real(*args, **kw))
     monkeypatch.setattr(im, "_MIN_BANDED_MACS", 10**9)
     ry, rx = _canvas_correlations((96, 128), (60, 70), (8, 10), 90.0)
-    assert banded.BandPlan.of(rx.reshape(-1, 128)).banded
+    assert banded.BandPlan.of(rx.reshape(-1, 128), 96).banded
     op = im.scene_operator(torch.rand(1, 96, 128, dtype=DT), ry, rx)
     x = torch.zeros(4, 1, 60, 70, dtype=DT)
     x[:, :, :5] = 1
     im.apply_operator(op, x)
     assert not calls
+
+
+def test_plan_weighs_the_per_block_overhead_against_the_work_it_saves():
+    # The same band: multiplying a narrow factor, a block's call overhead outweighs the zeros it skips (one
+    # dense block); multiplying a wide one, the blocks win (banded._BLOCK_OVERHEAD: ~15 us a block).
+    a = band_matrix(300, 120, 5, 0.37, torch.Generator().manual_seed(0))
+    assert not banded.BandPlan.of(a, 10).banded
+    wide = banded.BandPlan.of(a, 100_000)
+    assert wide.banded and wide.cost == wide.macs + banded._BLOCK_OVERHEAD * len(wide.blocks)
