@@ -281,7 +281,9 @@ def scene_operator(psf: torch.Tensor, ry: torch.Tensor, rx: torch.Tensor, spans=
     ry2, rx2 = ry.reshape(a * h, Hp), rx.reshape(b * w, Wp)
     rows_first = a * h * Wp * (Hp + b * w)  # the dense products' multiply-adds, per PSF channel
     columns_first = Hp * b * w * (Wp + a * h)
-    if spans is not False and min(rows_first, columns_first) >= _MIN_BANDED_MACS and not (ry.requires_grad or rx.requires_grad):
+    # On a CPU only: a GPU runs one large product faster than hundreds of small ones (one launch each).
+    if (spans is not False and psf.device.type == "cpu" and min(rows_first, columns_first) >= _MIN_BANDED_MACS
+            and not (ry.requires_grad or rx.requires_grad)):
         sy, sx = spans if spans is not None else (banded.row_spans(ry2), banded.row_spans(rx2))
         py, px = banded.BandPlan(*sy, Hp, C * b * w), banded.BandPlan(*sx, Wp, C * Hp)
         # Small blocked products run at a fraction of one large product's rate (call overhead, short
@@ -354,11 +356,12 @@ def _sparse_scene_product(x: torch.Tensor, opm: torch.Tensor) -> torch.Tensor | 
     A digit shifted on Table 3's canvas covers about a fifth of its rows: its nonzero pixels lie in one
     contiguous run of the flattened scene. Sorted by where that run starts, consecutive scenes share most
     of it, and each block of scenes multiplies only its run's columns of the operator
-    (:func:`banded.banded_mm`; exact, the same terms summed in another order). None where the operator
-    is small or the scenes fill too much of the canvas for that to save work.
+    (:func:`banded.banded_mm`; exact, the same terms summed in another order). None off a CPU (a GPU
+    runs one large product faster than many small ones), where the operator is small, or where the
+    scenes fill too much of the canvas for that to save work.
     """
     B, h, w = x.shape
-    if B < 2 or opm.shape[0] < _MIN_SPARSE_ROWS or B * h * w * opm.shape[0] < _MIN_BANDED_MACS:
+    if B < 2 or x.device.type != "cpu" or opm.shape[0] < _MIN_SPARSE_ROWS or B * h * w * opm.shape[0] < _MIN_BANDED_MACS:
         return None
     first, last = banded.row_spans(x.abs().amax(-1))  # the nonzero rows of each scene
     order = torch.argsort(first, stable=True)
