@@ -319,8 +319,11 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
             return (fy, ly), (fx, lx)
         r0, r1, c0, c1 = region
         h, w = scene_shape
-        cut = lambda t, n, i0, i1: t.reshape(-1, n)[:, i0:i1].reshape(-1)  # noqa: E731
-        return (cut(fy, h, r0, r1), cut(ly, h, r0, r1)), (cut(fx, w, c0, c1), cut(lx, w, c0, c1))
+
+        def cut(spans, n, i0, i1):  # the rows (embedding row, scene row i0..i1) of a flattened (out, n) tensor
+            return tuple(t.reshape(-1, n)[:, i0:i1].reshape(-1) for t in spans)
+
+        return cut((fy, ly), h, r0, r1), cut((fx, lx), w, c0, c1)
 
     def operator(self, scene_shape: tuple[int, int], height: float | None = None,
                  region: tuple[int, int, int, int] | None = None) -> torch.Tensor:

@@ -169,3 +169,22 @@ def test_plan_weighs_the_per_block_overhead_against_the_work_it_saves():
     assert not banded.BandPlan.of(a, 10).banded
     wide = banded.BandPlan.of(a, 100_000)
     assert wide.banded and wide.cost == wide.macs + banded._BLOCK_OVERHEAD * len(wide.blocks)
+
+
+@pytest.mark.filterwarnings("ignore")  # the small grid's sampling warning
+def test_encoder_region_spans_are_those_of_the_region_tensors():
+    # The encoder caches the row spans of its whole correlation tensors and cuts them for a support region;
+    # the cut must be the spans of the region's own tensors (else the banded build would miss entries).
+    from optoenc.config import build_encoder, compose
+
+    run = compose(names={"encoder": "learned_slm", "decoder": "logistic"},
+                  overrides=["sensor.embedding=[6,8]", "fidelity.grid=[48,64]"])
+    enc = build_encoder(run)
+    shape, hpx = (30, 40), enc.object_height_px(None) * 2.5
+    ry, rx = enc._correlations(shape, hpx, "cpu")
+    for region in (None, (3, 17, 5, 33), (0, 30, 39, 40)):
+        (fy, ly), (fx, lx) = enc._region_spans(shape, hpx, "cpu", region)
+        r0, r1, c0, c1 = region or (0, 30, 0, 40)
+        for (f, l_), t in (((fy, ly), ry[:, r0:r1]), ((fx, lx), rx[:, c0:c1])):
+            ef, el = banded.row_spans(t.reshape(-1, t.shape[-1]))
+            assert torch.equal(f, ef) and torch.equal(l_, el)
