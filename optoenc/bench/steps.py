@@ -46,7 +46,8 @@ def _set_malloc(enc, on: bool) -> None:
     keep_freed_memory("keep" if on else "system")
 
 
-#: ``--against`` choices: (what is toggled, its reference label, its candidate label, setter(encoder, on)).
+#: ``--against`` choices: (the reference's label, the candidate's label, setter(encoder, on)). The malloc pair sets
+#: the process's allocator (and leaves it keeping freed memory, as the CLI's processes do).
 AGAINST = {
     "support": ("whole operator", "support region", _set_support),
     "banded": ("dense build", "banded build", _set_banded),
