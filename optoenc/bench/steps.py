@@ -10,9 +10,12 @@ names the pair (:data:`AGAINST`):
 * ``support``: :attr:`OpticalEncoder.support_regions` off (the whole
   scene's operator) -> on (the operator of the batch's support);
 * ``banded``: :attr:`OpticalEncoder.banded_operators` off (dense products)
-  -> on (the correlation tensors' zeros skipped);
-* ``malloc``: glibc's default allocator thresholds -> freed memory kept
-  (:mod:`optoenc.training.allocator`; what the CLI's processes run with).
+  -> on (the correlation tensors' zeros skipped).
+
+The allocator setting (:mod:`optoenc.training.allocator`) cannot be compared
+in one process: glibc reuses the free chunks a process has kept whatever its
+thresholds are set to later. Compare it with two runs, ``OPTOENC_MALLOC=system``
+and ``keep`` (docs/benchmarks.md, "Freed memory kept").
 
 Reported per cell: the least disturbed (minimum) step of each, their ratio,
 and the epoch's training steps at that rate. Fixed encoders train on
@@ -40,18 +43,10 @@ def _set_banded(enc, on: bool) -> None:
     enc.banded_operators = on
 
 
-def _set_malloc(enc, on: bool) -> None:
-    from ..training.allocator import keep_freed_memory
-
-    keep_freed_memory("keep" if on else "system")
-
-
-#: ``--against`` choices: (the reference's label, the candidate's label, setter(encoder, on)). The malloc pair sets
-#: the process's allocator (and leaves it keeping freed memory, as the CLI's processes do).
+#: ``--against`` choices: (the reference's label, the candidate's label, setter(encoder, on)).
 AGAINST = {
     "support": ("whole operator", "support region", _set_support),
     "banded": ("dense build", "banded build", _set_banded),
-    "malloc": ("glibc defaults", "freed memory kept", _set_malloc),
 }
 
 
