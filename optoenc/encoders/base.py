@@ -289,6 +289,10 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
 
     # ----------------------------------------------------------------- imaging
     def _correlations(self, scene_shape: tuple[int, int], height_px: float, device) -> tuple[torch.Tensor, torch.Tensor]:
+        return self._geometry_factors(scene_shape, height_px, device)[:2]
+
+    def _geometry_factors(self, scene_shape: tuple[int, int], height_px: float, device):
+        """``(ry, rx, spans)``: the correlation tensors and their row spans (:func:`banded.row_spans`), cached."""
         key = ("corr", scene_shape, round(height_px, 9), self.operator_dtype, str(device), self.sensor.sampling)
         if key not in self._op_cache:
             H, W = self.geometry.grid
@@ -303,27 +307,25 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
             # Bounded: a learned d2 changes the height every step.
             stale = [k for k in self._op_cache if k[0] == "corr"]
             for k in stale[: max(0, len(stale) - _MAX_GEOMETRIES + 1)]:
-                del self._op_cache[k], self._op_cache[("spans",) + k[1:]]
-            self._op_cache[key] = (ry.to(device, self.operator_dtype), rx.to(device, self.operator_dtype))
+                del self._op_cache[k]
+            ry, rx = ry.to(device, self.operator_dtype), rx.to(device, self.operator_dtype)
             # Where each flattened row's nonzero entries lie: the banded build's plan (imaging.scene_operator).
-            self._op_cache[("spans",) + key[1:]] = tuple(
-                banded.row_spans(r.reshape(-1, r.shape[-1])) for r in self._op_cache[key]
-            )
+            spans = tuple(banded.row_spans(r.reshape(-1, r.shape[-1])) for r in (ry, rx))
+            self._op_cache[key] = (ry, rx, spans)
         return self._op_cache[key]
 
-    def _region_spans(self, scene_shape, height_px, device, region):
-        """The correlation tensors' row spans (:func:`banded.row_spans`) for the scene ``region`` (None: all)."""
-        key = ("spans", scene_shape, round(height_px, 9), self.operator_dtype, str(device), self.sensor.sampling)
-        (fy, ly), (fx, lx) = self._op_cache[key]
+    @staticmethod
+    def _region_spans(spans, scene_shape, region):
+        """The row spans of the correlation tensors cut to the scene ``region`` (None: all of them)."""
         if region is None:
-            return (fy, ly), (fx, lx)
+            return spans
         r0, r1, c0, c1 = region
         h, w = scene_shape
 
-        def cut(spans, n, i0, i1):  # the rows (embedding row, scene row i0..i1) of a flattened (out, n) tensor
-            return tuple(t.reshape(-1, n)[:, i0:i1].reshape(-1) for t in spans)
+        def cut(pair, n, i0, i1):  # the rows (embedding row, scene row i0..i1) of a flattened (out, n) tensor
+            return tuple(t.reshape(-1, n)[:, i0:i1].reshape(-1) for t in pair)
 
-        return cut((fy, ly), h, r0, r1), cut((fx, lx), w, c0, c1)
+        return cut(spans[0], h, r0, r1), cut(spans[1], w, c0, c1)
 
     def operator(self, scene_shape: tuple[int, int], height: float | None = None,
                  region: tuple[int, int, int, int] | None = None) -> torch.Tensor:
@@ -342,9 +344,8 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
                 changes).
         """
         psf = self.psf()
-        height_px = self.object_height_px(height)
-        ry, rx = self._correlations(tuple(scene_shape), height_px, psf.device)
-        spans = self._region_spans(tuple(scene_shape), height_px, psf.device, region) if self.banded_operators else False
+        ry, rx, spans = self._geometry_factors(tuple(scene_shape), self.object_height_px(height), psf.device)
+        spans = self._region_spans(spans, tuple(scene_shape), region) if self.banded_operators else False
         if region is not None:
             r0, r1, c0, c1 = region
             return imaging.scene_operator(psf.to(self.operator_dtype), ry[:, r0:r1], rx[:, c0:c1], spans)

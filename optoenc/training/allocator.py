@@ -12,9 +12,10 @@ and Table 3's 24x32 learned training steps ran 2.1-2.3x faster kept
 memory in the process for the next step's tensors; the process's resident
 size stays at its peak, which a training process reaches every step anyway.
 
-``OPTOENC_MALLOC=system`` sets glibc's initial defaults back (for
-comparisons, or a process that must give memory back; glibc's dynamic mmap
-threshold stays off once a threshold is set). Elsewhere than glibc (macOS, Windows,
+``OPTOENC_MALLOC=system`` leaves glibc alone (its defaults, dynamic mmap
+threshold included: for comparisons, or a process that must give memory
+back). Set it before the process starts: glibc reuses the chunks a process
+has kept whatever its thresholds say later, so there is no switching back. Elsewhere than glibc (macOS, Windows,
 musl) this does nothing.
 """
 
@@ -29,7 +30,6 @@ __all__ = ["keep_freed_memory", "ENV", "CHOICES"]
 ENV = "OPTOENC_MALLOC"
 CHOICES = ("keep", "system")
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3  # glibc's mallopt parameters (malloc.h)
-_SYSTEM = {_M_TRIM_THRESHOLD: 128 * 1024, _M_MMAP_THRESHOLD: 128 * 1024}  # glibc's documented defaults
 _KEEP = {_M_TRIM_THRESHOLD: 2**31 - 1, _M_MMAP_THRESHOLD: 2**31 - 1}  # mallopt takes an int: 2 GiB - 1
 
 
@@ -43,9 +43,10 @@ def _libc():
 
 
 def keep_freed_memory(mode: str | None = None) -> bool:
-    """Set malloc to keep (``"keep"``) or return (``"system"``) freed memory; None: ``$OPTOENC_MALLOC`` or keep.
+    """Set malloc to keep freed memory (``"keep"``) or leave it alone (``"system"``); None: ``$OPTOENC_MALLOC`` or keep.
 
-    Returns whether glibc took the setting (False where the C library is not glibc).
+    Returns whether glibc's thresholds were set (False for ``"system"``, and where the C library is
+    not glibc).
 
     Raises:
         ConfigError: an unknown mode (one line naming the value and the choices).
@@ -55,8 +56,7 @@ def keep_freed_memory(mode: str | None = None) -> bool:
     mode = mode if mode is not None else (os.environ.get(ENV) or "keep")
     if mode not in CHOICES:
         raise ConfigError(ENV, mode, f"must be one of {', '.join(CHOICES)}")
-    lib = _libc()
+    lib = _libc() if mode == "keep" else None
     if lib is None:
         return False
-    values = _KEEP if mode == "keep" else _SYSTEM
-    return all(lib.mallopt(ctypes.c_int(p), ctypes.c_int(v)) == 1 for p, v in values.items())
+    return all(lib.mallopt(ctypes.c_int(p), ctypes.c_int(v)) == 1 for p, v in _KEEP.items())

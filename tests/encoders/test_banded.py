@@ -181,9 +181,9 @@ def test_encoder_region_spans_are_those_of_the_region_tensors():
                   overrides=["sensor.embedding=[6,8]", "fidelity.grid=[48,64]"])
     enc = build_encoder(run)
     shape, hpx = (30, 40), enc.object_height_px(None) * 2.5
-    ry, rx = enc._correlations(shape, hpx, "cpu")
+    ry, rx, spans = enc._geometry_factors(shape, hpx, "cpu")
     for region in (None, (3, 17, 5, 33), (0, 30, 39, 40)):
-        (fy, ly), (fx, lx) = enc._region_spans(shape, hpx, "cpu", region)
+        (fy, ly), (fx, lx) = enc._region_spans(spans, shape, region)
         r0, r1, c0, c1 = region or (0, 30, 0, 40)
         for (f, l_), t in (((fy, ly), ry[:, r0:r1]), ((fx, lx), rx[:, c0:c1])):
             ef, el = banded.row_spans(t.reshape(-1, t.shape[-1]))
