@@ -60,6 +60,7 @@ class BandPlan:
         first, last: ``(m,)`` per-row spans of the nonzero entries (:func:`row_spans`).
         k: the matrix's number of columns.
         n: the number of columns of the factor it multiplies (the work per row-times-column unit).
+        block_rows: the candidate block sizes, in rows (default ``_BLOCK_ROWS``).
 
     Attributes:
         blocks: ``[(r0, r1, k0, k1), ...]``: rows ``[r0, r1)`` are zero outside
@@ -70,11 +71,11 @@ class BandPlan:
         banded: whether the plan skips zeros (False: one dense product).
     """
 
-    def __init__(self, first: torch.Tensor, last: torch.Tensor, k: int, n: int):
+    def __init__(self, first: torch.Tensor, last: torch.Tensor, k: int, n: int, block_rows=_BLOCK_ROWS):
         m, k, n = int(first.numel()), int(k), int(n)
         self.shape = (m, k)
         best = None
-        for rows in _BLOCK_ROWS:
+        for rows in block_rows:
             nb = -(-m // rows)
             pad = nb * rows - m
             f = torch.cat([first, first.new_full((pad,), k)]).reshape(nb, rows).amin(1)
@@ -106,13 +107,12 @@ class BandPlan:
 
 class _BandedMM(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, b, a, plan, transposed):
-        n = b.shape[0] if transposed else b.shape[1]
-        out = (b.new_empty if plan.covers_all_rows else b.new_zeros)(a.shape[0], n)
+    def forward(ctx, b, a, plan):
+        out = (b.new_empty if plan.covers_all_rows else b.new_zeros)(a.shape[0], b.shape[1])
         for r0, r1, k0, k1 in plan.blocks:
-            torch.mm(a[r0:r1, k0:k1], b[:, k0:k1].T if transposed else b[k0:k1], out=out[r0:r1])
+            torch.mm(a[r0:r1, k0:k1], b[k0:k1], out=out[r0:r1])
         ctx.save_for_backward(a)
-        ctx.plan, ctx.transposed, ctx.b_shape = plan, transposed, b.shape
+        ctx.plan, ctx.b_shape = plan, b.shape
         return out
 
     @staticmethod
@@ -123,28 +123,71 @@ class _BandedMM(torch.autograd.Function):
             gb = grad.new_zeros(ctx.b_shape)
             grad = grad.contiguous()
             for r0, r1, k0, k1 in ctx.plan.blocks:
-                if ctx.transposed:
-                    gb[:, k0:k1].addmm_(grad[r0:r1].T, a[r0:r1, k0:k1])
-                else:
-                    gb[k0:k1].addmm_(a[r0:r1, k0:k1].T, grad[r0:r1])
-        return gb, None, None, None
+                gb[k0:k1].addmm_(a[r0:r1, k0:k1].T, grad[r0:r1])
+        return gb, None, None
 
 
-def banded_mm(a: torch.Tensor, b: torch.Tensor, plan: BandPlan | None = None, *, transposed: bool = False) -> torch.Tensor:
+class _ColumnBandedMM(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, w, x, plan):
+        out = x.new_zeros(x.shape[0], w.shape[0])
+        for c0, c1, s0, s1 in plan.blocks:
+            out[s0:s1].addmm_(x[s0:s1, c0:c1], w[:, c0:c1].T)
+        ctx.save_for_backward(x)
+        ctx.plan, ctx.w_shape = plan, w.shape
+        return out
+
+    @staticmethod
+    def backward(ctx, grad):
+        (x,) = ctx.saved_tensors
+        gw = None
+        if ctx.needs_input_grad[0]:
+            # The blocks' column ranges do not overlap: each is written once (beta=0 ignores what the
+            # uninitialised memory holds) and only the columns no block covers are zeroed.
+            gw = grad.new_empty(ctx.w_shape)
+            grad = grad.contiguous()
+            done = 0
+            for c0, c1, s0, s1 in ctx.plan.blocks:
+                gw[:, done:c0].zero_()
+                gw[:, c0:c1].addmm_(grad[s0:s1].T, x[s0:s1, c0:c1], beta=0)
+                done = c1
+            gw[:, done:].zero_()
+        return gw, None, None
+
+
+def banded_mm(a: torch.Tensor, b: torch.Tensor, plan: BandPlan | None = None) -> torch.Tensor:
     """``a @ b`` for a constant banded ``(m, k)`` matrix ``a`` and a ``(k, n)`` matrix ``b``.
 
     Differentiable with respect to ``b`` only (``a`` must not require a
     gradient). ``plan`` is ``BandPlan.of(a, n)``, computed here when not given.
-    Rows of ``a`` that are all zero give zero rows. ``transposed``: ``b`` is
-    given as its ``(n, k)`` transpose and ``a @ b.T`` is computed without
-    copying it (the scene operator's layout, :func:`imaging.apply_operator`).
+    Rows of ``a`` that are all zero give zero rows.
     """
     if a.requires_grad:
         raise ValueError("banded_mm: the banded factor is a constant; it must not require a gradient")
-    k = b.shape[-1] if transposed else b.shape[0]
-    if a.dim() != 2 or b.dim() != 2 or a.shape[1] != k:
-        raise ValueError(f"banded_mm: shapes {tuple(a.shape)} and {tuple(b.shape)}{' (transposed)' if transposed else ''} do not multiply")
-    plan = BandPlan.of(a, b.shape[0] if transposed else b.shape[1]) if plan is None else plan
+    if a.dim() != 2 or b.dim() != 2 or a.shape[1] != b.shape[0]:
+        raise ValueError(f"banded_mm: shapes {tuple(a.shape)} and {tuple(b.shape)} do not multiply")
+    plan = BandPlan.of(a, b.shape[1]) if plan is None else plan
     if plan.shape != tuple(a.shape):
         raise ValueError(f"banded_mm: the plan is for a {plan.shape} matrix, not {tuple(a.shape)}")
-    return _BandedMM.apply(b.contiguous(), a, plan, transposed)
+    return _BandedMM.apply(b.contiguous(), a, plan)
+
+
+def column_banded_mm(x: torch.Tensor, w: torch.Tensor, plan: BandPlan | None = None) -> torch.Tensor:
+    """``x @ w.T`` for a constant ``(m, k)`` matrix ``x`` whose columns are banded, and an ``(n, k)`` ``w``.
+
+    Each column of ``x`` is nonzero in a run of rows only (a canvas pixel is lit by a run of the scenes
+    sorted by where they start): ``plan`` is the :class:`BandPlan` of ``x.T``, whose blocks of columns
+    ``[c0, c1)`` each multiply their rows ``[s0, s1)`` only, ``x[s0:s1, c0:c1] @ w[:, c0:c1].T``. Each
+    block's product reads its part of ``w`` once for all the rows it serves, and writes its part of the
+    gradient once (a plan over the rows of ``x`` re-reads and re-writes the same columns of ``w`` and of
+    its gradient for every block of a few rows). Differentiable with respect to ``w`` only; ``w`` is
+    read in its own layout (no copy) and its gradient comes out in it.
+    """
+    if x.requires_grad:
+        raise ValueError("column_banded_mm: the banded factor is a constant; it must not require a gradient")
+    if x.dim() != 2 or w.dim() != 2 or x.shape[1] != w.shape[1]:
+        raise ValueError(f"column_banded_mm: shapes {tuple(x.shape)} and {tuple(w.shape)} (transposed) do not multiply")
+    plan = BandPlan.of(x.T, w.shape[0]) if plan is None else plan
+    if plan.shape != (x.shape[1], x.shape[0]):
+        raise ValueError(f"column_banded_mm: the plan is for a {plan.shape} matrix, not the transpose of {tuple(x.shape)}")
+    return _ColumnBandedMM.apply(w, x.contiguous(), plan)

@@ -348,28 +348,35 @@ def apply_operator(op: torch.Tensor, scene: torch.Tensor, skip_zeros: bool = Tru
 # The scenes' row scan (~0.5 ns a pixel) must be small next to the product it may save (C a b multiply-adds
 # a pixel at ~30 GMAC/s): below this many operator rows the dense product is taken at once.
 _MIN_SPARSE_ROWS = 128
+# Candidate blocks of whole canvas rows for the scenes' product (:func:`_sparse_scene_product`).
+_SCENE_BLOCK_ROWS = (1, 2, 4, 8)
 
 
 def _sparse_scene_product(x: torch.Tensor, opm: torch.Tensor) -> torch.Tensor | None:
     """``x @ opm.T`` for ``(B, h, w)`` scenes that are zero outside a few rows each, or None if not cheaper.
 
-    A digit shifted on Table 3's canvas covers about a fifth of its rows: its nonzero pixels lie in one
-    contiguous run of the flattened scene. Sorted by where that run starts, consecutive scenes share most
-    of it, and each block of scenes multiplies only its run's columns of the operator
-    (:func:`banded.banded_mm`; exact, the same terms summed in another order). None off a CPU (a GPU
-    runs one large product faster than many small ones), where the operator is small, or where the
-    scenes fill too much of the canvas for that to save work.
+    A digit shifted on Table 3's canvas covers about a fifth of its rows. Sorted by their first lit row,
+    the scenes lighting any one canvas row are a run of consecutive scenes, so each block of canvas rows
+    multiplies its part of the operator by that run only (:func:`banded.column_banded_mm`; exact, the
+    same terms summed in another order): the operator and its gradient are read and written once per
+    step, in products of tens of scenes. None off a CPU (a GPU runs one large product faster than many
+    small ones), where the operator is small, or where the scenes fill too much of the canvas for that to
+    save work.
     """
     B, h, w = x.shape
     if B < 2 or x.device.type != "cpu" or opm.shape[0] < _MIN_SPARSE_ROWS or B * h * w * opm.shape[0] < _MIN_BANDED_MACS:
         return None
-    first, last = banded.row_spans(x.abs().amax(-1))  # the nonzero rows of each scene
+    first, last = banded.row_spans(x.abs().amax(-1))  # the lit rows of each scene
     order = torch.argsort(first, stable=True)
-    plan = banded.BandPlan(first[order] * w, last[order] * w, h * w, opm.shape[0])
+    rows = torch.arange(h)[:, None]
+    lit = (first[order][None] <= rows) & (last[order][None] > rows)  # (h, B): canvas row r lit by sorted scene s
+    s0, s1 = banded.row_spans(lit)  # the run of sorted scenes lighting each canvas row
+    plan = banded.BandPlan(s0.repeat_interleave(w), s1.repeat_interleave(w), B, opm.shape[0],
+                           block_rows=tuple(w * r for r in _SCENE_BLOCK_ROWS))
     if not plan.banded:
         return None
     order = order.to(x.device)
-    out = banded.banded_mm(x.reshape(B, h * w).index_select(0, order), opm, plan, transposed=True)
+    out = banded.column_banded_mm(x.reshape(B, h * w).index_select(0, order), opm, plan)
     return out.index_select(0, torch.argsort(order))
 
 

@@ -63,6 +63,30 @@ def test_banded_mm_is_the_dense_product_and_its_gradient(zero_rows, small_is_lar
     assert torch.autograd.gradcheck(lambda x: banded.banded_mm(a, x, plan), (b,))
 
 
+def test_column_banded_mm_is_the_dense_product_and_its_gradient(small_is_large):
+    # x's columns are banded (x.T is a band matrix) with all-zero columns at both ends and in the middle:
+    # x @ w.T and its gradient with respect to w equal the dense ones (float64, the same terms in another
+    # order: 1e-12), the gradient is exactly zero on the columns no block covers (written, not left as
+    # uninitialised memory), and gradcheck passes.
+    g = torch.Generator().manual_seed(3)
+    zero = [*range(0, 8), *range(56, 64), *range(112, 120)]  # whole blocks of the plan's smallest sizes
+    x = band_matrix(120, 40, 6, 0.3, g, zero_rows=zero).T.contiguous()  # (40, 120)
+    w = torch.rand(11, 120, generator=g, dtype=DT, requires_grad=True)
+    plan = banded.BandPlan.of(x.T, 11)
+    assert plan.banded and not plan.covers_all_rows
+    out = banded.column_banded_mm(x, w, plan)
+    torch.testing.assert_close(out, x @ w.T, rtol=1e-12, atol=1e-12)
+    wgt = torch.randn(40, 11, generator=g, dtype=DT)
+    (g1,) = torch.autograd.grad((out * wgt).sum(), w)
+    torch.testing.assert_close(g1, wgt.T @ x, rtol=1e-12, atol=1e-12)
+    assert bool((g1[:, zero] == 0).all())
+    assert torch.autograd.gradcheck(lambda v: banded.column_banded_mm(x, v, plan), (w,))
+    with pytest.raises(ValueError, match="constant"):
+        banded.column_banded_mm(x.clone().requires_grad_(), w)
+    with pytest.raises(ValueError, match="plan is for"):
+        banded.column_banded_mm(x, w, banded.BandPlan.of(x, 11))
+
+
 def test_banded_mm_refuses_a_learned_band_or_a_wrong_plan():
     a = torch.eye(5, dtype=DT)
     with pytest.raises(ValueError, match="constant"):
@@ -126,8 +150,8 @@ def test_sparse_scene_product_is_the_dense_apply_and_its_gradient(monkeypatch, s
         x[i, 0, r : r + 8, min(c, 22) : min(c, 22) + 8] = torch.rand(8, 8, generator=g, dtype=DT)
     op = torch.rand(C, a, b, h, w, generator=g, dtype=DT, requires_grad=True)
     calls = []
-    real = banded.banded_mm
-    monkeypatch.setattr(banded, "banded_mm", lambda *args, **kw: calls.append(1) or real(*args, **kw))
+    real = banded.column_banded_mm
+    monkeypatch.setattr(banded, "column_banded_mm", lambda *args, **kw: calls.append(1) or real(*args, **kw))
     out = im.apply_operator(op, x)
     assert calls, "the sparse product was not taken"
     dense = im.apply_operator(op, x, skip_zeros=False)
