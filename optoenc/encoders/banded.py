@@ -14,13 +14,19 @@ its nonzero entries. ``A @ B`` is then one small dense product per block,
 ``A[r0:r1, k0:k1] @ B[k0:k1]``, which skips only exact zeros: the result is
 the dense product's up to the order of float sums. :func:`banded_mm` is that
 product with its gradient with respect to ``B`` (``A`` is geometry: constant).
+
+:func:`column_banded_mm` is the other side: ``X @ W.T`` for a constant ``X``
+whose *columns* are banded (a batch of digits on a canvas, sorted by where
+they start: each canvas pixel is lit by a run of consecutive scenes), with its
+gradient with respect to ``W`` (the scene operator). Its plan is the
+:class:`BandPlan` of ``X.T``.
 """
 
 from __future__ import annotations
 
 import torch
 
-__all__ = ["BandPlan", "banded_mm", "row_spans"]
+__all__ = ["BandPlan", "banded_mm", "column_banded_mm", "row_spans"]
 
 # Candidate row-block sizes. Larger blocks amortise each product's call overhead and feed the GEMM
 # kernels more rows; smaller ones follow a sloping band more tightly. The plan takes the candidate with
