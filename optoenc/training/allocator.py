@@ -7,8 +7,9 @@ encoder on an augmentation canvas allocates and frees tens of MB every step
 (Table 3's 24x32 operator is 49 MB, its gradient as much again): each fresh
 block costs a page fault per 4 KB page on first touch, and zeroing a freshly
 mapped 49 MB tensor took 24 ms instead of 1.5 ms on the AMD EPYC machine,
-and Table 3's 24x32 learned training steps ran 2.1-2.3x faster kept
-(docs/benchmarks.md, "Freed memory kept"). Raising both thresholds keeps freed
+and Table 3's 24x32 learned training step under shift (its whole-canvas
+operator over glibc's 32-MB cap) ran 1.75x faster kept; steps whose blocks
+stay under the cap gain nothing (docs/benchmarks.md, "Freed memory kept"). Raising both thresholds keeps freed
 memory in the process for the next step's tensors; the process's resident
 size stays at its peak, which a training process reaches every step anyway.
 
