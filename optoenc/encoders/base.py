@@ -288,9 +288,6 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         return psf
 
     # ----------------------------------------------------------------- imaging
-    def _correlations(self, scene_shape: tuple[int, int], height_px: float, device) -> tuple[torch.Tensor, torch.Tensor]:
-        return self._geometry_factors(scene_shape, height_px, device)[:2]
-
     def _geometry_factors(self, scene_shape: tuple[int, int], height_px: float, device):
         """``(ry, rx, spans)``: the correlation tensors and their row spans (:func:`banded.row_spans`), cached."""
         key = ("corr", scene_shape, round(height_px, 9), self.operator_dtype, str(device), self.sensor.sampling)

@@ -146,7 +146,7 @@ def test_learned_gradcheck_float64():
     enc = LearnedSLM(**TINY)
     assert enc.block.shape == (4, 1)
     scene = torch.rand(1, 1, 4, 4, dtype=torch.float64, generator=torch.Generator().manual_seed(1))
-    ry, rx = enc._correlations((4, 4), enc.object_height_px(), scene.device)
+    ry, rx, _ = enc._geometry_factors((4, 4), enc.object_height_px(), scene.device)
     base = enc.logits.detach().clone()
 
     def embed(sub):
