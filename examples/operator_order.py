@@ -38,9 +38,9 @@ def cases():
     enc = build_encoder(run)
     psf = enc.psf().detach()
     canvas = canvas_for(run, enc, (28, 28))
-    yield "Table 1, 28 x 28 digit", psf, *enc._correlations((28, 28), enc.object_height_px(None), "cpu")
-    yield f"Table 3, {canvas.shape[0]} x {canvas.shape[1]} canvas", psf, *enc._correlations(
-        canvas.shape, enc.object_height_px(canvas.fov[0]), "cpu")
+    yield "Table 1, 28 x 28 digit", psf, *enc._geometry_factors((28, 28), enc.object_height_px(None), "cpu")[:2]
+    yield f"Table 3, {canvas.shape[0]} x {canvas.shape[1]} canvas", psf, *enc._geometry_factors(
+        canvas.shape, enc.object_height_px(canvas.fov[0]), "cpu")[:2]
 
 
 def compare(repeats: int = 5, only_first: bool = False) -> list[dict]:
