@@ -52,13 +52,15 @@ def test_sweep_moves_one_knob_at_a_time_from_default():
         base = pipeline.preset_setting("default", name)  # with the encoder's own measured overrides
         pts = pipeline.sweep_settings(name)
         for s in pts:
-            diff = [k for k in ("grid", "dtype", "padding", "wavelengths", "oversample") if getattr(s, k) != getattr(base, k)]
+            diff = [k for k in ("grid", "dtype", "padding", "wavelengths", "oversample", "propagation")
+                    if getattr(s, k) != getattr(base, k)]
             diff = ["psf_oversample" if k == "oversample" else k for k in diff]
             assert diff == [s.knob], (name, s)
         knobs = {s.knob for s in pts}
         assert {"grid", "dtype"} <= knobs
-        # Padding and the spectral model only exist for propagated (mask) PSFs.
+        # Padding and the spectral model only exist for propagated (mask) PSFs; propagation axis by axis for the LCD's.
         assert ({"padding", "wavelengths", "psf_oversample"} <= knobs) == (name != "lens")
+        assert ("propagation" in knobs) == (name == "fixed_slm")
 
 
 # ----------------------------------------------------------------------------- the paper pipeline
@@ -170,7 +172,7 @@ def test_auto_picks_the_cheapest_reliable_setting_meeting_the_tolerance():
     c = choose(FAKE, "learned_slm", 0.01)
     assert c.row["setting"] == "grid=576x768"
     assert c.fidelity.resolved() == {"grid": (576, 768), "dtype": "float32", "padding": "auto", "psf_oversample": 1,
-                                     "operator_dtype": "same"}
+                                     "operator_dtype": "same", "propagation": "separable"}
     assert any("padding=0" in r for r in c.rejected)
     assert choose(FAKE, "learned_slm", 0.005).fidelity.preset == "reference"
     assert choose(FAKE, "learned_slm", 0.05).row["setting"] == "fast"

@@ -128,7 +128,8 @@ def test_one_wavelength_uses_the_field_spacing_when_oversampled():
     from optoenc.encoders import slm_panel
     from optoenc.optics import intensity_psf
 
-    s = pipeline.Setting("w", "sweep", (48, 64), "float64", "auto", wavelengths=1, oversample=3)
+    # the 2-D propagation, which intensity_psf below computes (axis by axis is tested in tests/optics/test_separable.py)
+    s = pipeline.Setting("w", "sweep", (48, 64), "float64", "auto", wavelengths=1, oversample=3, propagation="blas")
     enc = pipeline.build_encoder("fixed_slm", s, (6, 8))
     m = slm_panel.rasterise(enc.weights().double(), enc.block, enc.field_grid, enc.field_spacing)[1]
     q = intensity_psf(m, (550e-9,), enc.field_spacing, enc.scene_config.distance, enc.d2, normalize="power")

@@ -44,14 +44,14 @@ def test_knobs_are_frozen_validated_and_round_trip():
     with pytest.raises(AttributeError):
         k.grid = (1, 1)
     for bad in ({"psf_oversample": 2}, {"padding": "wide"}, {"padding": -0.5}, {"dtype": "float16"}, {"grid": (0, 4)},
-                {"operator_dtype": "float16"}):
+                {"operator_dtype": "float16"}, {"propagation": "fft"}):
         with pytest.raises(ConfigError):
             k.replace(**bad)
     # Knobs -> explicit FidelityConfig -> resolved() is the same Knobs, for any encoder's presets
     f = k.replace(psf_oversample=3, padding=0.25).fidelity(preset="reference")
     assert f.resolved() == f.resolved(CodedAperture.fidelity_presets) == k.replace(psf_oversample=3, padding=0.25)
     assert json.loads(json.dumps(k.to_dict())) == {"grid": [192, 256], "dtype": "float64", "padding": "auto", "psf_oversample": 1,
-                                                  "operator_dtype": "same"}
+                                                  "operator_dtype": "same", "propagation": "separable"}
     assert hash(k) == hash(FidelityConfig(preset="fast", dtype="float64").resolved())
 
 

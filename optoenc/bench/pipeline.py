@@ -127,6 +127,7 @@ class Setting:
         knob, value: the swept knob and its value (sweep points only).
         wavelengths: 3 (the spectral model) or 1 (550 nm only, mask encoders).
         oversample: ``psf_oversample``.
+        propagation: ``fidelity.propagation`` (None: the preset's own).
     """
 
     label: str
@@ -139,6 +140,7 @@ class Setting:
     value: Optional[str] = None
     wavelengths: int = 3
     oversample: int = 1
+    propagation: Optional[str] = None
 
     @property
     def method(self) -> str:
@@ -153,6 +155,7 @@ class Setting:
             dtype=self.dtype,
             padding=str(self.padding),
             psf_oversample=int(self.oversample),
+            propagation=self.propagation,
         )
 
 
@@ -190,7 +193,8 @@ def _encoder_class(name: str):
 
 
 def sweep_settings(encoder_name: str, base: str = "default") -> list[Setting]:
-    """Each knob alone from ``base``: grid, dtype; for mask encoders also padding, wavelengths, PSF oversampling.
+    """Each knob alone from ``base``: grid, dtype; for mask encoders also padding, wavelengths, PSF oversampling,
+    and propagation (2-D or axis by axis) for those whose mask factors by axis (``MaskEncoder.separable``).
 
     Every other knob keeps ``base``'s value (``psf_oversample`` included);
     points equal to ``base`` itself are left out (the preset row stands for them).
@@ -216,6 +220,12 @@ def sweep_settings(encoder_name: str, base: str = "default") -> list[Setting]:
         other = 3 if s == 1 else 1
         out.append(Setting(f"psf_oversample={other}", "sweep", b.grid, b.dtype, b.padding, knob="psf_oversample",
                            value=str(other), oversample=other))
+        cls = _encoder_class(encoder_name)
+        if getattr(cls, "separable", False):
+            own = b.fidelity().resolved(getattr(cls, "fidelity_presets", {})).propagation
+            other = "blas" if own == "separable" else "separable"
+            out.append(Setting(f"propagation={other}", "sweep", b.grid, b.dtype, b.padding, knob="propagation",
+                               value=other, oversample=s, propagation=other))
     return out
 
 

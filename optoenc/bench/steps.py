@@ -10,7 +10,9 @@ names the pair (:data:`AGAINST`):
 * ``support``: :attr:`OpticalEncoder.support_regions` off (the whole
   scene's operator) -> on (the operator of the batch's support);
 * ``banded``: :attr:`OpticalEncoder.banded_operators` off (dense products)
-  -> on (the correlation tensors' zeros skipped).
+  -> on (the correlation tensors' zeros skipped);
+* ``propagation``: ``fidelity.propagation`` ``blas`` (the mask's PSF by 2-D
+  FFTs) -> ``separable`` (axis by axis, the LCD encoders).
 
 The allocator setting (:mod:`optoenc.training.allocator`) cannot be compared
 in one process: glibc reuses the free chunks a process has kept whatever its
@@ -43,10 +45,16 @@ def _set_banded(enc, on: bool) -> None:
     enc.banded_operators = on
 
 
+def _set_propagation(enc, on: bool) -> None:
+    enc.knobs = enc.knobs.replace(propagation="separable" if on else "blas")
+    enc.invalidate_psf()
+
+
 #: ``--against`` choices: (the reference's label, the candidate's label, setter(encoder, on)).
 AGAINST = {
     "support": ("whole operator", "support region", _set_support),
     "banded": ("dense build", "banded build", _set_banded),
+    "propagation": ("2-D BLAS PSF", "axis-by-axis PSF", _set_propagation),
 }
 
 

@@ -17,16 +17,22 @@ import math
 import torch
 
 from .. import devices
-from ..optics import intensity_psf, padded_shape
+from ..optics import axis_operator, check_sampling, cross_phase, intensity_psf, padded_shape
+from ..optics.psf import check_energy
+from ..optics.separable import real_operators, separable_intensity
 from .base import OpticalEncoder
 
-__all__ = ["MaskEncoder", "AUTO_CHUNK_SAMPLES"]
+__all__ = ["MaskEncoder", "AUTO_CHUNK_SAMPLES", "SEPARABLE_MAX_PHASE"]
 
 #: With ``wavelength_chunk`` None, the wavelengths are propagated one at a time once the padded field of all of
 #: them together exceeds this many samples (2**24: 256 MB per complex128 copy). The transfer function's float64
 #: temporaries scale with the batch: the coded aperture's ``reference`` field (3 x 4.0k x 5.4k) peaked at 8.2 GB
 #: all at once, 3.4 GB one at a time; the PSF is the same to float rounding.
 AUTO_CHUNK_SAMPLES = 2**24
+#: ``fidelity.propagation = "separable"``: the largest phase (radians) the axis-by-axis factorisation may drop
+#: (:func:`optoenc.optics.cross_phase`); beyond it the 2-D BLAS is used. The ST7735R LCD at the paper's
+#: geometry drops 3.5e-3 rad, and its PSF differs from the 2-D BLAS one by 1.4e-5 (relative L2, float64).
+SEPARABLE_MAX_PHASE = 0.01
 
 
 class MaskEncoder(OpticalEncoder):
@@ -52,6 +58,9 @@ class MaskEncoder(OpticalEncoder):
     #: Wavelengths propagated per FFT batch; None: all at once, or one at a time on large fields
     #: (:data:`AUTO_CHUNK_SAMPLES`); set to 1 to bound memory on very fine grids.
     wavelength_chunk: int | None = None
+    #: Whether the mask is cells on a lattice that :meth:`separable_psf` can propagate axis by axis (the LCDs):
+    #: ``fidelity.propagation`` applies to it (and ``optoenc bench`` sweeps that knob).
+    separable: bool = False
     #: Set by :meth:`set_monochromatic`: one wavelength (metres) propagated with the G channel's mask for every
     #: colour channel; None: the R, G, B wavelengths of :data:`optoenc.devices.WAVELENGTHS_RGB`.
     monochromatic: float | None = None
@@ -138,10 +147,7 @@ class MaskEncoder(OpticalEncoder):
 
     def _auto_chunk(self, wl, d2) -> int:
         """Wavelengths per batch when ``wavelength_chunk`` is None: all, or 1 above :data:`AUTO_CHUNK_SAMPLES`."""
-        dist = float(torch.as_tensor(d2).detach().abs().max())
-        pad = self.fidelity_padding()
-        pad = pad if isinstance(pad, str) else tuple(int(p) for p in pad)
-        hp, wp = padded_shape(self.field_grid, self.field_spacing, max(wl), dist, pad)
+        hp, wp = self._padded(float(torch.as_tensor(d2).detach().abs().max()), max(wl))
         return 1 if hp * wp * len(wl) > AUTO_CHUNK_SAMPLES else len(wl)
 
     def propagated_psf(self, mask: torch.Tensor, d2: float | torch.Tensor) -> torch.Tensor:
@@ -158,7 +164,7 @@ class MaskEncoder(OpticalEncoder):
                 real or complex.
             d2: mask-to-sensor distance, metres (a tensor may require grad).
         """
-        wl = devices.WAVELENGTHS_RGB if self.monochromatic is None else (self.monochromatic,)
+        wl = self._wavelengths()
         if self.monochromatic is not None and mask.dim() == 3 and mask.shape[0] == 3:
             mask = mask[1:2]  # the G channel's mask
         step = self.wavelength_chunk or self._auto_chunk(wl, d2)
@@ -174,9 +180,77 @@ class MaskEncoder(OpticalEncoder):
             ).reshape(-1, *mask.shape[-2:])
             for i in range(0, len(wl), step)
         ])  # fmt: skip
+        return self._grid_psf(psf)
+
+    def _grid_psf(self, psf: torch.Tensor) -> torch.Tensor:
+        """``(3, H, W)`` on the grid from a ``(C, ...)`` field-grid PSF: integrated over each grid pixel."""
         if self.oversample > 1:  # intensity integrated over each grid pixel
             s = self.oversample
             H, W = self.geometry.grid
             psf = psf[..., : H * s, : W * s]
             psf = torch.nn.functional.avg_pool2d(psf[None] if psf.dim() == 3 else psf[None, None], s)[0]
         return psf.to(self.optics_dtype).expand(3, -1, -1) if psf.shape[0] == 1 else psf.to(self.optics_dtype)
+
+    # ----------------------------------------------------------------- masks of cells on a lattice
+    def separable_applies(self, d2: float | torch.Tensor) -> bool:
+        """Whether :meth:`separable_psf` is used: the mask is :attr:`separable`, ``fidelity.propagation`` is
+        ``"separable"``, ``d2`` is not learned, and the factorisation drops at most :data:`SEPARABLE_MAX_PHASE`."""
+        if not self.separable or self.knobs.propagation != "separable":
+            return False
+        if isinstance(d2, torch.Tensor) and d2.requires_grad:
+            return False
+        return self._cross_phase(float(d2)) <= SEPARABLE_MAX_PHASE
+
+    def _wavelengths(self) -> tuple[float, ...]:
+        return devices.WAVELENGTHS_RGB if self.monochromatic is None else (self.monochromatic,)
+
+    def _padded(self, d2: float, wavelength: float | None = None) -> tuple[int, int]:
+        """The padded field grid for ``|d2|`` and the longest wavelength (or ``wavelength``)."""
+        pad = self.fidelity_padding()
+        pad = pad if isinstance(pad, str) else tuple(int(p) for p in pad)
+        lam = max(self._wavelengths()) if wavelength is None else wavelength
+        return padded_shape(self.field_grid, self.field_spacing, lam, abs(d2), pad)
+
+    def _cross_phase(self, d2: float) -> float:
+        key = (self._wavelengths(), self.scene_config.distance, d2, self.field_grid, self.field_spacing, self.knobs.padding)
+        cached = getattr(self, "_cross_phases", None)
+        if cached is None or cached[0] != key:
+            wl = torch.tensor(key[0], dtype=torch.float64)
+            phase = cross_phase(self.field_grid, self._padded(d2), self.field_spacing, wl, key[1], d2)
+            cached = self._cross_phases = (key, phase)
+        return cached[1]
+
+    def separable_psf(self, ay: torch.Tensor, values: torch.Tensor, ax: torch.Tensor, d2: float) -> torch.Tensor:
+        """``(3, H, W)``: :meth:`propagated_psf` of the mask ``ay @ values @ ax.T``, propagated axis by axis.
+
+        :mod:`optoenc.optics.separable`: the field is ``L_y V L_x^T`` per
+        wavelength, in real arithmetic (:func:`~optoenc.optics.separable_intensity`),
+        the axis operators built once per geometry and kept (the sampling
+        diagnostics run when they are built).
+
+        Args:
+            ay, ax: ``(H, m)``, ``(W, n)`` rasterisation factors on the field grid
+                (:func:`optoenc.optics.cell_factors`).
+            values: ``(3, m, n)`` cell transmittances per R, G, B wavelength (or ``(m, n)`` for all).
+            d2: mask-to-sensor distance, metres (a float: a learned ``d2`` takes :meth:`propagated_psf`).
+        """
+        wl = self._wavelengths()
+        if self.monochromatic is not None and values.dim() == 3 and values.shape[0] == 3:
+            values = values[1:2]  # the G channel's cells
+        d1, d2 = self.scene_config.distance, float(d2)
+        padded = self._padded(d2)
+        key = (wl, d1, d2, padded, self.field_grid, self.field_spacing, self.optics_dtype, str(values.device),
+               tuple(ay.shape), tuple(ax.shape), float(ay.sum()), float(ax.sum()))
+        cached = getattr(self, "_axis_operators", None)
+        if cached is None or cached[0] != key:
+            wlt = torch.tensor(wl, dtype=torch.float64)
+            ly = axis_operator(ay.detach().cpu(), padded[0], self.field_spacing[0], wlt, d1, d2)
+            lx = axis_operator(ax.detach().cpu(), padded[1], self.field_spacing[1], wlt, d1, d2)
+            # normalize="power": divided by the unit-amplitude source's power on the window, H W
+            lr, bt = real_operators(ly, lx, 1.0 / (self.field_grid[0] * self.field_grid[1]), self.optics_dtype)
+            cached = self._axis_operators = (key, lr.to(values.device), bt.to(values.device))
+            wlt = wlt.to(values.device)
+            check_sampling(self.field_grid, self.field_spacing, wlt, d2, d1, method="blas", padding=self.fidelity_padding())
+        psf = separable_intensity(cached[1], values, cached[2])
+        check_energy(psf, torch.tensor(wl), powers_kept=True)
+        return self._grid_psf(psf)

@@ -37,9 +37,9 @@ import torch
 
 from .. import devices as K
 from ..errors import ConfigError
-from ..optics import cell_mask
+from ..optics import cell_factors
 
-__all__ = ["PanelBlock", "active_block", "rasterise", "full_panel", "to_panel_image", "level_counts"]
+__all__ = ["PanelBlock", "active_block", "rasterise", "rasterise_factors", "full_panel", "to_panel_image", "level_counts"]
 
 
 @dataclass(frozen=True)
@@ -109,6 +109,18 @@ def rasterise(
         open cell integrated over the grid pixels with exact fractional areas
         (:func:`optoenc.optics.cell_mask`); linear and differentiable in ``weights``.
     """
+    ay, values, ax = rasterise_factors(weights, block, grid, spacing)
+    return ay.to(values.dtype) @ values @ ax.to(values.dtype).T
+
+
+def rasterise_factors(
+    weights: torch.Tensor, block: PanelBlock, grid: tuple[int, int], spacing: tuple[float, float]
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """:func:`rasterise` by axis: ``(A_y, values, A_x)`` with the mask ``A_y @ values[c] @ A_x^T``.
+
+    ``A_y`` ``(H, rows)`` and ``A_x`` ``(W, cols)`` float64 (:func:`optoenc.optics.cell_factors`),
+    ``values`` ``(3, rows, cols)`` in ``weights``' dtype: channel ``c`` the weights of the colour-``c`` rows.
+    """
     rows = block.rows * K.ST7735R_PITCH[0]
     cols = block.cols * K.ST7735R_PITCH[1]
     if rows > grid[0] * spacing[0] or cols > grid[1] * spacing[1]:
@@ -117,7 +129,8 @@ def rasterise(
         )
     onehot = torch.from_numpy(np.eye(3)[block.colours].T).to(weights.device, weights.dtype)  # (3, rows)
     fill = tuple(c / p for c, p in zip(K.ST7735R_CELL, K.ST7735R_PITCH))
-    return cell_mask(onehot[:, :, None] * weights[None], K.ST7735R_PITCH, grid, spacing, fill_factor=fill)
+    ay, ax = cell_factors((block.rows, block.cols), K.ST7735R_PITCH, grid, spacing, fill, device=weights.device)
+    return ay, onehot[:, :, None] * weights[None], ax
 
 
 def full_panel(weights: torch.Tensor, block: PanelBlock) -> torch.Tensor:

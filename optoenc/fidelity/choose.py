@@ -58,6 +58,7 @@ def _fidelity(row: dict) -> FidelityConfig:
         dtype=row["dtype"],
         padding=str(row["padding"]),
         psf_oversample=int(row.get("psf_oversample") or 1),
+        propagation=row["value"] if row.get("knob") == "propagation" else None,
     )
 
 

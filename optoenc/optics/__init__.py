@@ -3,7 +3,7 @@
 Propagation (band-limited angular spectrum, ASM, Fresnel) with a
 compute/apply split and an LRU cache, input fields (point sources, plane
 waves, Gaussian beams), thin elements (lenses, apertures, cell masks, phase
-masks), an explicit :class:`Spectrum`, the intensity PSF of a mask, sampling
+masks), separable propagation of masks on a lattice, an explicit :class:`Spectrum`, the intensity PSF of a mask, sampling
 diagnostics, and colour pictures of spectral PSFs. No configuration system or
 registry lives here; see ``docs/optics.md`` for the conventions.
 
@@ -13,7 +13,7 @@ lazily by the colour functions.
 
 from .colour import colour_matching, spectral_to_srgb, spectral_to_xyz, wavelength_to_srgb
 from .diagnostics import SamplingReport, SamplingWarning, check_sampling, sampling_report
-from .elements import cell_mask, circular_aperture, phase_mask, rect_aperture, thin_lens
+from .elements import cell_factors, cell_mask, circular_aperture, phase_mask, rect_aperture, thin_lens
 from .propagation import (
     METHODS,
     apply_transfer_function,
@@ -25,6 +25,7 @@ from .propagation import (
     propagate,
 )
 from .psf import NORMALIZATIONS, intensity_psf, sensor_field
+from .separable import axis_operator, axis_propagator, cross_phase, separable_field, source_factor
 from .sources import coordinates, gaussian_beam, plane_wave, point_source, source_phase_step
 from .spectrum import VISIBLE_BAND, Spectrum
 
@@ -49,6 +50,7 @@ __all__ = [
     "circular_aperture",
     "rect_aperture",
     "cell_mask",
+    "cell_factors",
     "phase_mask",
     # spectra and colour
     "Spectrum",
@@ -61,6 +63,12 @@ __all__ = [
     "NORMALIZATIONS",
     "intensity_psf",
     "sensor_field",
+    # separable masks, axis by axis
+    "axis_propagator",
+    "source_factor",
+    "axis_operator",
+    "separable_field",
+    "cross_phase",
     # diagnostics
     "SamplingReport",
     "SamplingWarning",

@@ -19,7 +19,7 @@ from ..errors import ConfigError
 from ._common import as_real, as_spacing
 from .sources import _pair, coordinates
 
-__all__ = ["thin_lens", "circular_aperture", "rect_aperture", "cell_mask", "phase_mask"]
+__all__ = ["thin_lens", "circular_aperture", "rect_aperture", "cell_mask", "cell_factors", "phase_mask"]
 
 
 def thin_lens(
@@ -146,23 +146,33 @@ def cell_mask(
     """
     if not isinstance(values, torch.Tensor) or values.ndim < 2:
         raise ConfigError("values", getattr(values, "shape", values), "must be a tensor of shape (..., m, n)")
+    ay, ax = cell_factors(values.shape[-2:], cell_size, shape, spacing, fill_factor, offset, values.device)
+    real = values.real.dtype if values.is_complex() else values.dtype
+    ay, ax = ay.to(real), ax.to(real)
+    if values.is_complex():
+        ay, ax = ay.to(values.dtype), ax.to(values.dtype)
+    return ay @ values @ ax.T
+
+
+def cell_factors(cells, cell_size, shape, spacing, fill_factor=(1.0, 1.0), offset=(0.0, 0.0), device=None):
+    """The per-axis factors of :func:`cell_mask`: ``(A_y, A_x)``, float64 ``(H, m)`` and ``(W, n)``.
+
+    ``A_y[i, a]`` is the fraction of grid row ``i`` covered by the open part
+    of cell row ``a`` (the same along x), so a mask of ``(m, n)`` cells is
+    ``A_y @ values @ A_x^T``. Arguments as :func:`cell_mask`, ``cells = (m, n)``.
+    """
     dy, dx = as_spacing(spacing)
     hc, wc = as_spacing(cell_size)
     fy, fx = _pair(fill_factor, "fill_factor")
     if not (0 < fy <= 1 and 0 < fx <= 1):
         raise ConfigError("fill_factor", fill_factor, "must be in (0, 1] on both axes")
     y0, x0 = _pair(offset, "offset")
-    m, n = values.shape[-2:]
-    dev = values.device
-    cy = (torch.arange(m, dtype=torch.float64, device=dev) - (m - 1) / 2) * hc + y0
-    cx = (torch.arange(n, dtype=torch.float64, device=dev) - (n - 1) / 2) * wc + x0
+    m, n = (int(c) for c in cells)
+    cy = (torch.arange(m, dtype=torch.float64, device=device) - (m - 1) / 2) * hc + y0
+    cx = (torch.arange(n, dtype=torch.float64, device=device) - (n - 1) / 2) * wc + x0
     ay = _overlap(int(shape[0]), dy, cy - fy * hc / 2, cy + fy * hc / 2)
     ax = _overlap(int(shape[1]), dx, cx - fx * wc / 2, cx + fx * wc / 2)
-    real = values.real.dtype if values.is_complex() else values.dtype
-    ay, ax = ay.to(real), ax.to(real)
-    if values.is_complex():
-        ay, ax = ay.to(values.dtype), ax.to(values.dtype)
-    return ay @ values @ ax.T
+    return ay, ax
 
 
 def phase_mask(

@@ -16,7 +16,7 @@ from .propagation import propagate
 from .sources import point_source
 from .spectrum import Spectrum
 
-__all__ = ["NORMALIZATIONS", "sensor_field", "intensity_psf"]
+__all__ = ["NORMALIZATIONS", "sensor_field", "intensity_psf", "check_energy"]
 
 #: Normalisations understood by :func:`intensity_psf`.
 NORMALIZATIONS = ("sum", "power", "none")
@@ -157,16 +157,7 @@ def intensity_psf(
     if check:
         check_sampling(tuple(field.shape[-2:]), spacing, wl, d2, d1, method=method, padding=padding, bandlimit=bandlimit)
     psf = field.real.square() + field.imag.square()
-    total = psf.sum(dim=(-2, -1), keepdim=True)
-    bad = ~(total.detach() > 0) | ~torch.isfinite(total.detach())
-    if normalize != "sum" and bool(torch.isfinite(total.detach()).all()):
-        # A dark wavelength is physical when the powers are kept; only an all-dark PSF is unusable.
-        bad = bad.all(dim=-3, keepdim=True).expand_as(bad)
-    if bool(bad.any()):
-        idx = bad.reshape(-1, wl.numel()).any(dim=0).nonzero().reshape(-1).tolist()
-        nm = ", ".join(f"{1e9 * float(wl[i]):.0f} nm" for i in idx)
-        what = "no energy (all-zero or opaque mask?)" if bool(torch.isfinite(total.detach()).all()) else "NaN or inf values"
-        raise PhysicsError(f"intensity_psf: the PSF at {nm} has {what}; nothing usable reaches the sensor")
+    total = check_energy(psf, wl, normalize != "sum")
     if normalize == "sum":
         return psf / total
     if normalize == "power":
@@ -174,3 +165,24 @@ def intensity_psf(
         incident = (source.real.square() + source.imag.square()).sum(dim=(-2, -1), keepdim=True)
         return psf / incident
     return psf
+
+
+def check_energy(psf: torch.Tensor, wl: torch.Tensor, powers_kept: bool = True) -> torch.Tensor:
+    """``psf``'s total per wavelength ``(..., C, 1, 1)``, refusing NaN or inf, or no energy.
+
+    With ``powers_kept`` (any normalisation but ``"sum"``) a dark wavelength is
+    allowed (an opaque colour filter is physical); only an all-dark PSF is not.
+
+    Raises:
+        PhysicsError: naming the wavelengths, as :func:`intensity_psf`.
+    """
+    total = psf.sum(dim=(-2, -1), keepdim=True)
+    bad = ~(total.detach() > 0) | ~torch.isfinite(total.detach())
+    if powers_kept and bool(torch.isfinite(total.detach()).all()):
+        bad = bad.all(dim=-3, keepdim=True).expand_as(bad)
+    if bool(bad.any()):
+        idx = bad.reshape(-1, wl.numel()).any(dim=0).nonzero().reshape(-1).tolist()
+        nm = ", ".join(f"{1e9 * float(wl[i]):.0f} nm" for i in idx)
+        what = "no energy (all-zero or opaque mask?)" if bool(torch.isfinite(total.detach()).all()) else "NaN or inf values"
+        raise PhysicsError(f"intensity_psf: the PSF at {nm} has {what}; nothing usable reaches the sensor")
+    return total
