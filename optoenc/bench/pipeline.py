@@ -43,6 +43,7 @@ renders them. Nothing is printed here.
 from __future__ import annotations
 
 import ctypes
+import dataclasses
 import gc
 import hashlib
 import io
@@ -127,7 +128,7 @@ class Setting:
         knob, value: the swept knob and its value (sweep points only).
         wavelengths: 3 (the spectral model) or 1 (550 nm only, mask encoders).
         oversample: ``psf_oversample``.
-        propagation: ``fidelity.propagation`` (None: the preset's own).
+        propagation: ``fidelity.propagation`` (None: the preset's own; a preset's setting names it).
     """
 
     label: str
@@ -166,7 +167,8 @@ def preset_setting(name: str, encoder_name: str | None = None) -> Setting:
     overrides = getattr(_encoder_class(encoder_name), "fidelity_presets", {}) if encoder_name else {}
     p = FidelityConfig(preset=name).resolved(overrides)
     return Setting(
-        name, "preset", tuple(p["grid"]), p["dtype"], p["padding"], preset=name, oversample=int(p.get("psf_oversample") or 1)
+        name, "preset", tuple(p["grid"]), p["dtype"], p["padding"], preset=name, oversample=int(p.get("psf_oversample") or 1),
+        propagation=p.propagation,
     )
 
 
@@ -200,32 +202,24 @@ def sweep_settings(encoder_name: str, base: str = "default") -> list[Setting]:
     points equal to ``base`` itself are left out (the preset row stands for them).
     """
     b = preset_setting(base, encoder_name)
-    mask = _is_mask_encoder(_encoder_class(encoder_name))
-    s = b.oversample
-    out = []
-    for g in SWEEP_GRIDS:
-        if tuple(g) != b.grid:
-            out.append(Setting(f"grid={_grid_str(g)}", "sweep", tuple(g), b.dtype, b.padding, knob="grid",
-                               value=_grid_str(g), oversample=s))
+    cls = _encoder_class(encoder_name)
+    mask = _is_mask_encoder(cls)
+
+    def point(knob: str, value, **changed) -> Setting:
+        return dataclasses.replace(b, label=f"{knob}={value}", kind="sweep", preset=None, knob=knob, value=str(value),
+                                   **changed)
+
+    out = [point("grid", _grid_str(g), grid=tuple(g)) for g in SWEEP_GRIDS if tuple(g) != b.grid]
     if mask:
-        for p in SWEEP_PADDINGS:
-            if p != str(b.padding):
-                out.append(Setting(f"padding={p}", "sweep", b.grid, b.dtype, p, knob="padding", value=p, oversample=s))
-    for d in SWEEP_DTYPES:
-        if d != b.dtype:
-            out.append(Setting(f"dtype={d}", "sweep", b.grid, d, b.padding, knob="dtype", value=d, oversample=s))
+        out += [point("padding", p, padding=p) for p in SWEEP_PADDINGS if p != str(b.padding)]
+    out += [point("dtype", d, dtype=d) for d in SWEEP_DTYPES if d != b.dtype]
     if mask:
-        out.append(Setting("wavelengths=1", "sweep", b.grid, b.dtype, b.padding, knob="wavelengths", value="1",
-                           wavelengths=1, oversample=s))
-        other = 3 if s == 1 else 1
-        out.append(Setting(f"psf_oversample={other}", "sweep", b.grid, b.dtype, b.padding, knob="psf_oversample",
-                           value=str(other), oversample=other))
-        cls = _encoder_class(encoder_name)
+        out.append(point("wavelengths", 1, wavelengths=1))
+        other = 3 if b.oversample == 1 else 1
+        out.append(point("psf_oversample", other, oversample=other))
         if getattr(cls, "separable", False):
-            own = b.fidelity().resolved(getattr(cls, "fidelity_presets", {})).propagation
-            other = "blas" if own == "separable" else "separable"
-            out.append(Setting(f"propagation={other}", "sweep", b.grid, b.dtype, b.padding, knob="propagation",
-                               value=other, oversample=s, propagation=other))
+            other = "blas" if b.propagation == "separable" else "separable"
+            out.append(point("propagation", other, propagation=other))
     return out
 
 
@@ -536,7 +530,7 @@ def plan(encoders=ENCODERS, presets=PRESETS, *, sweep: bool = True, paper: bool 
             units.append((name, paper_grid_setting(paper_grid, paper_padding)))
         units += [(name, preset_setting(p, name)) for p in presets]
         if sweep:
-            key = lambda u: (u.grid, u.dtype, str(u.padding), u.wavelengths, u.oversample)  # noqa: E731
+            key = lambda u: (u.grid, u.dtype, str(u.padding), u.wavelengths, u.oversample, u.propagation)  # noqa: E731
             have = {key(u) for n, u in units if n == name and u.kind in ("preset", "sweep")}
             units += [(name, u) for u in sweep_settings(name) if key(u) not in have]
     return units
