@@ -517,9 +517,17 @@ def sensor_psf(raw: torch.Tensor, channels: int, weights=None, name: str = "psf"
     is shared by all of an RGB sensor's channels (each sums to one).
     """
     w = _spectral_weights(raw, weights)
+    if channels == 1 and raw.shape[-3] > 1:
+        # normalize_psf, then the weighted sum, in the other order: one pass over the channels, and the
+        # finiteness check on the total (a sum is finite exactly when every term is, short of overflow)
+        gray = (w * raw).sum(dim=-3, keepdim=True)
+        total = gray.sum(dim=(-2, -1), keepdim=True)
+        if not bool(torch.isfinite(total.detach()).all()):
+            raise PhysicsError(f"{name}: the PSF has NaN or infinite values")
+        if bool((total.detach() <= 0).any()):
+            raise PhysicsError(f"{name}: the PSF has zero energy (all-zero or fully opaque); nothing reaches the sensor")
+        return gray / total
     psf = normalize_psf(raw, weights, name=name)
-    if channels == 1 and psf.shape[-3] > 1:
-        return (w * psf).sum(dim=-3, keepdim=True)
     if channels > 1 and psf.shape[-3] == 1:
         return psf.expand(channels, -1, -1)
     return psf

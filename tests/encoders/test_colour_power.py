@@ -124,3 +124,27 @@ def test_sensor_psf_rejects_only_an_all_dark_psf():
 
     with pytest.raises(PhysicsError, match="zero energy"):
         imaging.sensor_psf(torch.zeros(3, 4, 4), 1)
+
+
+def test_gray_sensor_psf_is_the_joint_normalisation_then_the_weighted_sum():
+    # sensor_psf's gray path sums the channels first; it must equal normalize_psf followed by the weighted sum
+    # (float64: the same terms in another order, 1e-15), gradient included, and refuse NaN or inf in any channel,
+    # a zero-weight one included (0 * NaN and 0 * inf are NaN).
+    from optoenc.devices import GRAYSCALE_WEIGHTS
+    from optoenc.errors import PhysicsError
+
+    raw = torch.rand(3, 6, 5, dtype=torch.float64, generator=torch.Generator().manual_seed(0)).requires_grad_(True)
+    w = torch.tensor(GRAYSCALE_WEIGHTS, dtype=torch.float64)[:, None, None]
+    want = (w * imaging.normalize_psf(raw)).sum(dim=-3, keepdim=True)
+    got = imaging.sensor_psf(raw, 1)
+    torch.testing.assert_close(got, want, rtol=1e-15, atol=0)
+    g = torch.rand(1, 6, 5, dtype=torch.float64)
+    ga, gb = torch.autograd.grad(got, raw, g)[0], torch.autograd.grad(want, raw, g)[0]
+    torch.testing.assert_close(ga, gb, rtol=1e-12, atol=1e-15)
+    for bad in (float("nan"), float("inf")):
+        x = raw.detach().clone()
+        x[2, 1, 1] = bad
+        with pytest.raises(PhysicsError, match="NaN or infinite"):
+            imaging.sensor_psf(x, 1)
+        with pytest.raises(PhysicsError, match="NaN or infinite"):
+            imaging.sensor_psf(x, 1, weights=(0.5, 0.5, 0.0))
