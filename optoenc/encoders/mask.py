@@ -4,7 +4,9 @@ Coded aperture, LCD/SLM and phase-mask encoders (and mask plugins) supply a
 transmittance on the wave-field grid (the simulation grid refined
 ``fidelity.psf_oversample`` times); the PSF is point source at ``d1`` ->
 mask -> band-limited angular spectrum over ``d2`` -> ``|U|^2`` at the R, G,
-B wavelengths in one batched FFT, integrated over each grid pixel. A new
+B wavelengths in one batched FFT, integrated over each grid pixel; a mask of
+cells on a lattice (:attr:`MaskEncoder.separable`, the LCDs) may instead be
+propagated axis by axis (:meth:`MaskEncoder.separable_psf`). A new
 amplitude mask is a subclass with :meth:`MaskEncoder.mask`, a phase mask one
 with :meth:`MaskEncoder.phase`; see docs/plugin-authoring.md.
 """
