@@ -136,21 +136,32 @@ def separable_intensity(lr: torch.Tensor, values: torch.Tensor, bt: torch.Tensor
 
 
 def cross_phase(shape, padded, spacing, wavelengths, d1: float, d2: float) -> float:
-    """The largest phase (radians) the axis-by-axis factorisation drops, on this grid.
+    """The largest phase (radians) the axis-by-axis factorisation drops, on this grid; ``inf`` where it fails.
 
-    The sum of the two leading cross terms at their worst corners: the
-    transfer function's ``k |d2| lam^4 u^2 v^2 / 4`` at the highest frequency
-    of each padded axis, and the source's ``k x^2 y^2 / (4 d1^3)`` at the
-    window's corner.
+    The sum of the two dropped cross terms, exactly, at their worst corners
+    (both grow with each coordinate): the transfer function's
+    ``k |d2| (sqrt(1 - lam^2 (u^2 + v^2)) - sqrt(1 - lam^2 u^2) - sqrt(1 - lam^2 v^2) + 1)``
+    at the highest frequency of each padded axis (about ``k d lam^4 u^2 v^2 / 4``),
+    and the source's ``phi(x^2 + y^2) - phi(x^2) - phi(y^2)``,
+    ``phi(t) = k t / (sqrt(t + d1^2) + d1)``, at the window's corner (about
+    ``k x^2 y^2 / (4 d1^3)``). ``inf`` when the band's corner is evanescent at
+    some wavelength (the 2-D transfer function decays there, the product of
+    the 1-D ones does not).
     """
     (h, w), (hp, wp), (dy, dx) = shape, padded, spacing
+    u = float(_frequencies(wp, dx).abs().max())
+    v = float(_frequencies(hp, dy).abs().max())
+    y, x = (h // 2) * dy, (w // 2) * dx
     worst = 0.0
-    for lam in (float(v) for v in torch.as_tensor(wavelengths, dtype=torch.float64).reshape(-1)):
+    for lam in (float(val) for val in torch.as_tensor(wavelengths, dtype=torch.float64).reshape(-1)):
         k = 2 * math.pi / lam
-        u = float(_frequencies(wp, dx).abs().max())
-        v = float(_frequencies(hp, dy).abs().max())
-        transfer = k * abs(d2) * lam**4 * u * u * v * v / 4
-        y, x = (h // 2) * dy, (w // 2) * dx
-        source = 0.0 if math.isinf(d1) else k * x * x * y * y / (4 * d1**3)
+        a, b = (lam * u) ** 2, (lam * v) ** 2
+        if a + b >= 1:
+            return math.inf
+        transfer = k * abs(d2) * abs(math.sqrt(1 - a - b) - math.sqrt(1 - a) - math.sqrt(1 - b) + 1)
+        source = 0.0
+        if not math.isinf(d1):
+            phi = lambda t: k * t / (math.sqrt(t + d1 * d1) + d1)  # noqa: E731
+            source = abs(phi(x * x + y * y) - phi(x * x) - phi(y * y))
         worst = max(worst, transfer + source)
     return worst

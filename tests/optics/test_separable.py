@@ -148,3 +148,23 @@ def test_an_opaque_lcd_is_refused_axis_by_axis_too():
     enc.invalidate_psf()
     with pytest.raises(PhysicsError, match="no energy"):
         enc.compute_psf()
+
+
+def test_cross_phase_is_the_leading_order_terms_where_they_are_small_and_inf_where_the_band_is_evanescent():
+    grid, padded, spacing, d1, d2 = (288, 384), (320, 400), (16.4e-6, 16.4e-6), 0.4, 4e-3
+    lam = 640e-9
+    k = 2 * math.pi / lam
+    u, v = 1 / (2 * spacing[1]), 1 / (2 * spacing[0])  # even padded sizes: the Nyquist frequency is on the grid
+    y, x = (grid[0] // 2) * spacing[0], (grid[1] // 2) * spacing[1]
+    leading = k * d2 * lam**4 * u * u * v * v / 4 + k * x * x * y * y / (4 * d1**3)
+    # the next terms are smaller by about lam^2 (u^2 + v^2) ~ 1e-3 and rho^2 / d1^2 ~ 1e-4
+    assert cross_phase(grid, padded, spacing, [lam], d1, d2) == pytest.approx(leading, rel=2e-3)
+    # a wavelength whose band corner is evanescent: no factorisation
+    assert cross_phase(grid, padded, spacing, [30e-6], d1, d2) == math.inf
+
+
+def test_an_lcd_at_a_wavelength_the_factors_cannot_carry_falls_back_to_blas():
+    enc = _slm()
+    enc.set_monochromatic(300e-6)  # far infrared on 49-um field samples: the band's corner is evanescent
+    assert not enc.separable_applies(enc.d2)
+    assert torch.isfinite(enc.psf()).all()
