@@ -9,7 +9,7 @@ propagates ``d2`` to the sensor with the band-limited angular spectrum and the
 intensity PSF is ``|U_c|^2``, all three wavelengths in one batched FFT; or, with
 ``fidelity.propagation = "separable"`` (the default preset), axis by axis as two small
 matrix products per wavelength (:mod:`optoenc.optics.separable`: the sub-pixels are
-cells on a lattice; PSF within 1.4e-5 of the 2-D one at the paper's geometry).
+cells on a lattice; PSF within 1.0e-5 of the 2-D one at the paper's geometry).
 """
 
 from __future__ import annotations

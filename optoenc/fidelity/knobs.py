@@ -193,7 +193,7 @@ class FidelityConfig(Settings):
         None,
         "'blas': the 2-D band-limited angular spectrum; 'separable': a mask of cells on a lattice (the LCD "
         "encoders) propagated axis by axis as two small matrix products where the dropped cross terms stay under "
-        "0.01 rad (the paper's LCD: 3.5e-3 rad, PSF within 1.4e-5 of 'blas'); other masks and a learned d2 use 'blas'",
+        "0.01 rad (the paper's LCD: 3.5e-3 rad, PSF within 1.0e-5 of 'blas'); other masks and a learned d2 use 'blas'",
         choices=_PROPAGATIONS,
     )
 
