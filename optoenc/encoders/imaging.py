@@ -447,9 +447,19 @@ def quantize(signal: torch.Tensor, bits: int, full_scale: torch.Tensor | float |
     return signal + (q - signal).detach()
 
 
-def _check_finite(psf: torch.Tensor, name: str) -> None:
-    if not torch.isfinite(psf).all():
+def _checked_total(total: torch.Tensor, name: str) -> torch.Tensor:
+    """A PSF's total(s), refused when not finite or not positive.
+
+    The totals are checked instead of every pixel: a sum is finite exactly
+    when every term is (a NaN or an infinite pixel makes it NaN or infinite;
+    ``0 * inf`` under a zero weight is NaN), short of finite terms that
+    overflow, which are refused too.
+    """
+    if not bool(torch.isfinite(total.detach()).all()):
         raise PhysicsError(f"{name}: the PSF has NaN or infinite values")
+    if bool((total.detach() <= 0).any()):
+        raise PhysicsError(f"{name}: the PSF has zero energy (all-zero or fully opaque); nothing reaches the sensor")
+    return total
 
 
 def _spectral_weights(psf: torch.Tensor, weights) -> torch.Tensor:
@@ -484,11 +494,8 @@ def normalize_psf(psf: torch.Tensor, weights=None, name: str = "psf") -> torch.T
     Raises:
         PhysicsError: the PSF is not finite or has no weighted energy at all.
     """
-    _check_finite(psf, name)
     total = (_spectral_weights(psf, weights) * psf.sum(dim=(-2, -1), keepdim=True)).sum(dim=-3, keepdim=True)
-    if (total <= 0).any():
-        raise PhysicsError(f"{name}: the PSF has zero energy (all-zero or fully opaque); nothing reaches the sensor")
-    return psf / total
+    return psf / _checked_total(total, name)
 
 
 def normalize_channels(psf: torch.Tensor, name: str = "psf") -> torch.Tensor:
@@ -501,11 +508,7 @@ def normalize_channels(psf: torch.Tensor, name: str = "psf") -> torch.Tensor:
     Raises:
         PhysicsError: the PSF is not finite, or a channel has no energy.
     """
-    _check_finite(psf, name)
-    total = psf.sum(dim=(-2, -1), keepdim=True)
-    if (total <= 0).any():
-        raise PhysicsError(f"{name}: the PSF has zero energy (all-zero or fully opaque); nothing reaches the sensor")
-    return psf / total
+    return psf / _checked_total(psf.sum(dim=(-2, -1), keepdim=True), name)
 
 
 def sensor_psf(raw: torch.Tensor, channels: int, weights=None, name: str = "psf") -> torch.Tensor:
@@ -518,15 +521,9 @@ def sensor_psf(raw: torch.Tensor, channels: int, weights=None, name: str = "psf"
     """
     w = _spectral_weights(raw, weights)
     if channels == 1 and raw.shape[-3] > 1:
-        # normalize_psf, then the weighted sum, in the other order: one pass over the channels, and the
-        # finiteness check on the total (a sum is finite exactly when every term is, short of overflow)
+        # normalize_psf, then the weighted sum, in the other order: one pass over the channels
         gray = (w * raw).sum(dim=-3, keepdim=True)
-        total = gray.sum(dim=(-2, -1), keepdim=True)
-        if not bool(torch.isfinite(total.detach()).all()):
-            raise PhysicsError(f"{name}: the PSF has NaN or infinite values")
-        if bool((total.detach() <= 0).any()):
-            raise PhysicsError(f"{name}: the PSF has zero energy (all-zero or fully opaque); nothing reaches the sensor")
-        return gray / total
+        return gray / _checked_total(gray.sum(dim=(-2, -1), keepdim=True), name)
     psf = normalize_psf(raw, weights, name=name)
     if channels > 1 and psf.shape[-3] == 1:
         return psf.expand(channels, -1, -1)

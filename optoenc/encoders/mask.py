@@ -208,10 +208,8 @@ class MaskEncoder(OpticalEncoder):
 
     def _padded(self, d2: float, wavelength: float | None = None) -> tuple[int, int]:
         """The padded field grid for ``|d2|`` and the longest wavelength (or ``wavelength``)."""
-        pad = self.fidelity_padding()
-        pad = pad if isinstance(pad, str) else tuple(int(p) for p in pad)
         lam = max(self._wavelengths()) if wavelength is None else wavelength
-        return padded_shape(self.field_grid, self.field_spacing, lam, abs(d2), pad)
+        return padded_shape(self.field_grid, self.field_spacing, lam, abs(d2), self.fidelity_padding())
 
     def _cross_phase(self, d2: float) -> float:
         key = (self._wavelengths(), self.scene_config.distance, d2, self.field_grid, self.field_spacing, self.knobs.padding)
@@ -222,17 +220,24 @@ class MaskEncoder(OpticalEncoder):
             cached = self._cross_phases = (key, phase)
         return cached[1]
 
-    def separable_psf(self, ay: torch.Tensor, values: torch.Tensor, ax: torch.Tensor, d2: float) -> torch.Tensor:
-        """``(3, H, W)``: :meth:`propagated_psf` of the mask ``ay @ values @ ax.T``, propagated axis by axis.
+    def cell_factors(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """A :attr:`separable` mask's rasterisation factors on the field grid: ``(A_y, A_x)``, ``(H, m)`` and
+        ``(W, n)``, with the mask ``A_y @ values @ A_x^T`` (:func:`optoenc.optics.cell_factors`).
+
+        Geometry only: a function of the encoder's configuration and :attr:`field_grid`, read once per geometry
+        by :meth:`separable_psf`.
+        """
+        raise NotImplementedError(f"{type(self).__name__} is separable: it must implement cell_factors()")
+
+    def separable_psf(self, values: torch.Tensor, d2: float) -> torch.Tensor:
+        """``(3, H, W)``: :meth:`propagated_psf` of the mask ``A_y @ values @ A_x^T``, propagated axis by axis.
 
         :mod:`optoenc.optics.separable`: the field is ``L_y V L_x^T`` per
-        wavelength, in real arithmetic (:func:`~optoenc.optics.separable_intensity`),
-        the axis operators built once per geometry and kept (the sampling
-        diagnostics run when they are built).
+        wavelength, in real arithmetic (:func:`~optoenc.optics.separable_intensity`).
+        The axis operators (from :meth:`cell_factors`) are built once per
+        geometry and kept, and the sampling diagnostics run when they are built.
 
         Args:
-            ay, ax: ``(H, m)``, ``(W, n)`` rasterisation factors on the field grid
-                (:func:`optoenc.optics.cell_factors`).
             values: ``(3, m, n)`` cell transmittances per R, G, B wavelength (or ``(m, n)`` for all).
             d2: mask-to-sensor distance, metres (a float: a learned ``d2`` takes :meth:`propagated_psf`).
         """
@@ -241,18 +246,17 @@ class MaskEncoder(OpticalEncoder):
             values = values[1:2]  # the G channel's cells
         d1, d2 = self.scene_config.distance, float(d2)
         padded = self._padded(d2)
-        key = (wl, d1, d2, padded, self.field_grid, self.field_spacing, self.optics_dtype, str(values.device),
-               tuple(ay.shape), tuple(ax.shape), float(ay.sum()), float(ax.sum()))
+        key = (wl, d1, d2, padded, self.field_grid, self.field_spacing, self.optics_dtype, str(values.device))
         cached = getattr(self, "_axis_operators", None)
         if cached is None or cached[0] != key:
+            ay, ax = self.cell_factors()
             wlt = torch.tensor(wl, dtype=torch.float64)
-            ly = axis_operator(ay.detach().cpu(), padded[0], self.field_spacing[0], wlt, d1, d2)
-            lx = axis_operator(ax.detach().cpu(), padded[1], self.field_spacing[1], wlt, d1, d2)
+            ly = axis_operator(ay.cpu(), padded[0], self.field_spacing[0], wlt, d1, d2)
+            lx = axis_operator(ax.cpu(), padded[1], self.field_spacing[1], wlt, d1, d2)
             # normalize="power": divided by the unit-amplitude source's power on the window, H W
             lr, bt = real_operators(ly, lx, 1.0 / (self.field_grid[0] * self.field_grid[1]), self.optics_dtype)
-            cached = self._axis_operators = (key, lr.to(values.device), bt.to(values.device))
-            wlt = wlt.to(values.device)
             check_sampling(self.field_grid, self.field_spacing, wlt, d2, d1, method="blas", padding=self.fidelity_padding())
+            cached = self._axis_operators = (key, lr.to(values.device), bt.to(values.device), wlt)
         psf = separable_intensity(cached[1], values, cached[2])
-        check_energy(psf, torch.tensor(wl), powers_kept=True)
+        check_energy(psf, cached[3], powers_kept=True)
         return self._grid_psf(psf)

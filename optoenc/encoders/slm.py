@@ -135,12 +135,14 @@ class _SLMBase(MaskEncoder):
         """``(384, 160)`` sub-pixel amplitude transmittances (0 outside the active block), detached."""
         return slm_panel.full_panel(self.weights().detach(), self.block)
 
+    def cell_factors(self) -> tuple[torch.Tensor, torch.Tensor]:
+        return slm_panel.panel_factors(self.block, self.field_grid, self.field_spacing)
+
     def compute_psf(self) -> torch.Tensor:
         w = self.weights().to(self.optics_dtype)
         d2 = self.d2_tensor()
         if self.separable_applies(d2):  # the sub-pixels are cells on a lattice: axis by axis
-            ay, values, ax = slm_panel.rasterise_factors(w, self.block, self.field_grid, self.field_spacing)
-            return self.separable_psf(ay, values, ax, d2)
+            return self.separable_psf(slm_panel.colour_values(w, self.block), d2)
         m = slm_panel.rasterise(w, self.block, self.field_grid, self.field_spacing)
         return self.propagated_psf(m, d2)
 

@@ -39,7 +39,7 @@ from .. import devices as K
 from ..errors import ConfigError
 from ..optics import cell_factors
 
-__all__ = ["PanelBlock", "active_block", "rasterise", "rasterise_factors", "full_panel", "to_panel_image", "level_counts"]
+__all__ = ["PanelBlock", "active_block", "rasterise", "colour_values", "panel_factors", "full_panel", "to_panel_image", "level_counts"]
 
 
 @dataclass(frozen=True)
@@ -109,17 +109,22 @@ def rasterise(
         open cell integrated over the grid pixels with exact fractional areas
         (:func:`optoenc.optics.cell_mask`); linear and differentiable in ``weights``.
     """
-    ay, values, ax = rasterise_factors(weights, block, grid, spacing)
+    values = colour_values(weights, block)
+    ay, ax = panel_factors(block, grid, spacing, weights.device)
     return ay.to(values.dtype) @ values @ ax.to(values.dtype).T
 
 
-def rasterise_factors(
-    weights: torch.Tensor, block: PanelBlock, grid: tuple[int, int], spacing: tuple[float, float]
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """:func:`rasterise` by axis: ``(A_y, values, A_x)`` with the mask ``A_y @ values[c] @ A_x^T``.
+def colour_values(weights: torch.Tensor, block: PanelBlock) -> torch.Tensor:
+    """``(3, rows, cols)`` in ``weights``' dtype: channel ``c`` holds the weights of the colour-``c`` rows, 0 elsewhere."""
+    onehot = torch.from_numpy(np.eye(3)[block.colours].T).to(weights.device, weights.dtype)  # (3, rows)
+    return onehot[:, :, None] * weights[None]
 
-    ``A_y`` ``(H, rows)`` and ``A_x`` ``(W, cols)`` float64 (:func:`optoenc.optics.cell_factors`),
-    ``values`` ``(3, rows, cols)`` in ``weights``' dtype: channel ``c`` the weights of the colour-``c`` rows.
+
+def panel_factors(block: PanelBlock, grid: tuple[int, int], spacing: tuple[float, float], device=None):
+    """The block's per-axis rasterisation factors ``(A_y, A_x)``, float64 ``(H, rows)`` and ``(W, cols)``.
+
+    The mask of channel ``c`` is ``A_y @ colour_values(w)[c] @ A_x^T``
+    (:func:`optoenc.optics.cell_factors`: open cells with exact fractional areas).
     """
     rows = block.rows * K.ST7735R_PITCH[0]
     cols = block.cols * K.ST7735R_PITCH[1]
@@ -127,10 +132,8 @@ def rasterise_factors(
         warnings.warn(
             "the active SLM block is larger than the simulated sensor area: its edge is cropped", stacklevel=3
         )
-    onehot = torch.from_numpy(np.eye(3)[block.colours].T).to(weights.device, weights.dtype)  # (3, rows)
     fill = tuple(c / p for c, p in zip(K.ST7735R_CELL, K.ST7735R_PITCH))
-    ay, ax = cell_factors((block.rows, block.cols), K.ST7735R_PITCH, grid, spacing, fill, device=weights.device)
-    return ay, onehot[:, :, None] * weights[None], ax
+    return cell_factors((block.rows, block.cols), K.ST7735R_PITCH, grid, spacing, fill, device=device)
 
 
 def full_panel(weights: torch.Tensor, block: PanelBlock) -> torch.Tensor:

@@ -126,7 +126,7 @@ def test_sensor_psf_rejects_only_an_all_dark_psf():
         imaging.sensor_psf(torch.zeros(3, 4, 4), 1)
 
 
-def test_gray_sensor_psf_is_the_joint_normalisation_then_the_weighted_sum():
+def test_gray_sensor_psf_is_the_joint_normalisation_then_the_weighted_sum_and_all_refuse_nan_or_inf():
     # sensor_psf's gray path sums the channels first; it must equal normalize_psf followed by the weighted sum
     # (float64: the same terms in another order, 1e-15), gradient included, and refuse NaN or inf in any channel,
     # a zero-weight one included (0 * NaN and 0 * inf are NaN).
@@ -148,3 +148,8 @@ def test_gray_sensor_psf_is_the_joint_normalisation_then_the_weighted_sum():
             imaging.sensor_psf(x, 1)
         with pytest.raises(PhysicsError, match="NaN or infinite"):
             imaging.sensor_psf(x, 1, weights=(0.5, 0.5, 0.0))
+        # the shared check, on the totals, in the joint and per-channel normalisations too
+        with pytest.raises(PhysicsError, match="NaN or infinite"):
+            imaging.normalize_psf(x, weights=(0.5, 0.5, 0.0))
+        with pytest.raises(PhysicsError, match="NaN or infinite"):
+            imaging.normalize_channels(x)
