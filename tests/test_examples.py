@@ -79,3 +79,25 @@ def test_operator_order_example_compares_the_same_operator():
     mod = runpy.run_path(str(EXAMPLES / "operator_order.py"))
     (row,) = mod["compare"](repeats=1, only_first=True)
     assert row["rel_diff"] < 1e-6 and row["rows_first_s"] > 0 and row["columns_first_s"] > 0
+
+
+def test_cost_tally_covers_every_cell_of_tables_1_and_3_once(tmp_path):
+    # The tally adds the AMD machines' measured run clocks and the sweep's estimate for the rest; its list of
+    # cells is the estimate files', which must be the specs' own (a spec changed since would leave them stale).
+    import csv
+
+    from optoenc import sweep
+
+    out = tmp_path / "tally.csv"
+    proc = subprocess.run([sys.executable, str(EXAMPLES / "paper" / "cost_tally.py"), "--csv", str(out)],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rows = list(csv.DictReader(out.open()))
+    for table in ("table1", "table3"):
+        names = [r["cell"] for r in rows if r["table"] == table]
+        spec_names = [c.name for c in sweep.load_spec(EXAMPLES / "paper" / f"{table}.yaml").expand()]
+        assert sorted(names) == sorted(spec_names), table
+    total_min = sum(float(r["seconds"]) for r in rows) / 60
+    printed = float(proc.stdout.split("Tables 1 and 3: ")[1].split(" min")[0])
+    assert abs(printed - total_min) < 0.2  # the CSV's seconds are rounded to 0.1 s: 128 cells, < 0.11 min
+    assert sum(r["source"].endswith(".txt") for r in rows) < len(rows)  # some cells measured, not all estimated

@@ -1,0 +1,100 @@
+"""Tables 1 and 3 on the AMD machines: the cells' measured run clocks where they have run, the sweep's
+quiet estimate elsewhere, and the machine time both add up to with two workers.
+
+    python examples/paper/cost_tally.py [--csv OUT.csv]
+
+Reads docs/results/epyc/: the estimates (``table{1,3}_estimate_2workers_separable.txt``, ``optoenc sweep
+SPEC --dry-run --workers 2``) and the run clocks of the cells measured with the code that trains them now
+(the newest file naming a cell wins; each file's command is in docs/results/README.md). A measured cell
+ran two at once, one thread each, as the tables are run; the estimate times steps on a quiet machine, so
+where both exist their ratio says how far the estimate is from a real sweep.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import re
+from pathlib import Path
+
+EPYC = Path(__file__).resolve().parents[2] / "docs" / "results" / "epyc"
+ESTIMATES = {"table1": "table1_estimate_2workers_separable.txt", "table3": "table3_estimate_2workers_separable.txt"}
+# (file, table, clock column), oldest first: a later file's clock replaces an earlier one's for the same cell.
+MEASURED = [
+    ("epoch_loop_cells.csv", "table1", "epoch_loop_clock_s"),  # 40 fixed-encoder cells, the epoch loop
+    ("table3_fixed_cells.csv", "table3", "epyc_epoch_loop_clock_s"),  # 38 fixed-encoder cells
+    ("propagation_cells.csv", "table1", "clock_s"),  # 16 learned-SLM cells, the axis-by-axis PSF
+    ("propagation_table3_cells.csv", "table3", "clock_s"),  # learned-SLM cells, the axis-by-axis PSF
+]
+_LINE = re.compile(r"^\s*\w+\s+([\d.]+) s \((\w+)\)\s+(\S+)\s*$")
+
+
+def estimates(table: str) -> dict[str, float]:
+    out = {}
+    for line in (EPYC / ESTIMATES[table]).read_text().splitlines():
+        m = _LINE.match(line)
+        if m:
+            out[m.group(3)] = float(m.group(1))
+    return out
+
+
+def measured(table: str) -> dict[str, tuple[float, str]]:
+    out = {}
+    for name, tab, col in MEASURED:
+        if tab != table:
+            continue
+        with open(EPYC / name, newline="") as f:
+            for row in csv.DictReader(f):
+                if row.get(col):
+                    out[row["cell"]] = (float(row[col]), name)
+    return out
+
+
+def tally() -> tuple[list[dict], dict]:
+    rows, totals = [], {}
+    for table in ESTIMATES:
+        est, meas = estimates(table), measured(table)
+        unknown = sorted(set(meas) - set(est))
+        if unknown:
+            raise SystemExit(f"{table}: measured cells the spec does not have: {unknown[:3]}")
+        t = totals[table] = {"cells": len(est), "measured": 0, "measured_s": 0.0, "their_estimate_s": 0.0,
+                             "estimated": 0, "estimated_s": 0.0}
+        for cell, e in est.items():
+            if cell in meas:
+                clock, src = meas[cell]
+                t["measured"] += 1
+                t["measured_s"] += clock
+                t["their_estimate_s"] += e
+            else:
+                clock, src = e, ESTIMATES[table]
+                t["estimated"] += 1
+                t["estimated_s"] += e
+            rows.append({"table": table, "cell": cell, "seconds": round(clock, 1), "estimate_s": e,
+                         "source": src})
+    return rows, totals
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--csv", type=Path, help="also write every cell's row here")
+    args = p.parse_args()
+    rows, totals = tally()
+    all_s = 0.0
+    for table, t in totals.items():
+        s = t["measured_s"] + t["estimated_s"]
+        all_s += s
+        ratio = t["measured_s"] / t["their_estimate_s"] if t["their_estimate_s"] else float("nan")
+        print(f"{table}: {t['cells']} cells; measured {t['measured']} ({t['measured_s'] / 60:.1f} min, "
+              f"{ratio:.2f}x their estimate), estimated {t['estimated']} ({t['estimated_s'] / 60:.1f} min): "
+              f"{s / 60:.1f} min of cell time")
+    print(f"Tables 1 and 3: {all_s / 60:.1f} min of cell time, about {all_s / 7200:.2f} h of machine time with two "
+          f"workers (goal: 4 h)")
+    if args.csv:
+        with open(args.csv, "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows)
+
+
+if __name__ == "__main__":
+    main()
