@@ -132,6 +132,9 @@ def _parser() -> argparse.ArgumentParser:
     sw.add_argument("--out", metavar="DIR", help="sweep directory (default: sweeps/<spec name>)")
     sw.add_argument("--dry-run", action="store_true", help="list the cells, their state and estimated time; run nothing")
     sw.add_argument("--workers", type=int, default=1, help="cells run at once (torch threads split between them)")
+    sw.add_argument("--threads", type=int, metavar="N",
+                    help="torch threads per worker (default: the machine's cores split between the workers; "
+                         "set it when other work, such as a second sweep, shares the cores)")
     sw.add_argument("--executor", default="local", help="local (processes), submitit-local or slurm (needs submitit)")
     sw.add_argument("--restart-changed", action="store_true", help="move aside cells whose stored config differs, re-run them")
     sw.add_argument("--collect", action="store_true", help="only collect finished cells into the tables and plots")
@@ -378,7 +381,7 @@ def cmd_sweep(args, extra) -> int:
     if args.dry_run:
         from .sweep.estimate import estimate
 
-        est = estimate(planned, threads=sweep.thread_budget(args.workers))
+        est = estimate(planned, threads=sweep.resolve_threads(args.workers, args.threads))
         total = sum(e["seconds"] for p, e in zip(planned, est.values()) if p.state != "finished" and e["seconds"] == e["seconds"])
         for p in planned:
             e = est[p.cell.name]
@@ -400,7 +403,7 @@ def cmd_sweep(args, extra) -> int:
                 (bar.write if sys.stderr.isatty() else lambda m: print(m, file=sys.stderr))(msg)
 
             failures = sweep.run(planned, out, workers=args.workers, executor=args.executor,
-                                 restart_changed=args.restart_changed, on_done=done)
+                                 restart_changed=args.restart_changed, on_done=done, threads=args.threads)
     else:
         failures = {}
     files = sweep.write_tables(spec, sweep.plan(spec, out), out)  # the tables always cover every cell

@@ -24,7 +24,7 @@ from ..training.rundir import RUN_FILES, atomic_write_text
 from .cells import cell_dir, cell_state, compose_cell, config_differences
 from .spec import Cell, SweepSpec
 
-__all__ = ["PlannedCell", "plan", "run", "thread_budget", "EXECUTORS"]
+__all__ = ["PlannedCell", "plan", "run", "thread_budget", "resolve_threads", "EXECUTORS"]
 
 #: Where cells run: in local processes, or through submitit.
 EXECUTORS = ("local", "submitit-local", "slurm")
@@ -70,6 +70,15 @@ def thread_budget(workers: int, cores: int | None = None) -> int:
     if cores is None:
         cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     return max(1, cores // max(1, workers))
+
+
+def resolve_threads(workers: int, threads: int | None) -> int:
+    """Torch threads per worker: ``threads`` where given (>= 1), else :func:`thread_budget`."""
+    if threads is None:
+        return thread_budget(workers)
+    if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
+        raise ConfigError("--threads", threads, "must be an integer >= 1 (torch threads per worker)")
+    return threads
 
 
 def _prepare(p: PlannedCell, restart_changed: bool) -> None:
@@ -161,20 +170,22 @@ def run(
     restart_changed: bool = False,
     slurm: dict | None = None,
     on_done: Callable[[PlannedCell, bool, str], None] | None = None,
+    threads: int | None = None,
 ) -> dict[str, str]:
     """Run every unfinished cell; returns ``{cell name: error}`` for the cells that failed.
 
-    A failing cell never stops the others. ``workers`` cells run at once,
-    each with :func:`thread_budget` torch threads.
+    A failing cell never stops the others. ``workers`` cells run at once, each with ``threads`` torch
+    threads (None: :func:`thread_budget`, the machine's cores split between the workers; give it where
+    other work shares the machine, such as a second sweep, so that the threads do not outnumber the cores).
     """
     if executor not in EXECUTORS:
         raise ConfigError("--executor", executor, f"one of {', '.join(EXECUTORS)}")
     if workers < 1:
         raise ConfigError("--workers", workers, "must be >= 1")
+    threads = resolve_threads(workers, threads)
     todo = [p for p in planned if p.todo]
     for p in todo:
         _prepare(p, restart_changed)
-    threads = thread_budget(workers)
     failures: dict[str, str] = {}
 
     def done(p: PlannedCell, ok: bool, err: str) -> None:
