@@ -6,6 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from optoenc.cli import main
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -60,9 +62,11 @@ def _bad_spec(tmp_path):
     return p
 
 
-def test_seed_stats_reads_the_committed_rerun_cells():
+@pytest.mark.parametrize("args", [[], ["--epyc"]], ids=["rerun", "epyc"])
+def test_seed_stats_reads_the_committed_cells(args):
+    # The re-run's committed cells (Intel) and the AMD machines' CSVs with the current code.
     root = EXAMPLES.parent
-    out = subprocess.run([sys.executable, str(EXAMPLES / "paper" / "seed_stats.py")], cwd=root,
+    out = subprocess.run([sys.executable, str(EXAMPLES / "paper" / "seed_stats.py"), *args], cwd=root,
                          capture_output=True, text=True, check=True).stdout
     # Every transform has >= 3 seeds per SLM at 24x32 (drawn once; the redrawn cells are left out).
     for t in ("shift", "rescale", "rotate", "perspective"):
@@ -101,3 +105,10 @@ def test_cost_tally_covers_every_cell_of_tables_1_and_3_once(tmp_path):
     printed = float(proc.stdout.split("Tables 1 and 3: ")[1].split(" min")[0])
     assert abs(printed - total_min) < 0.2  # the CSV's seconds are rounded to 0.1 s: 128 cells, < 0.11 min
     assert sum(r["source"].endswith(".txt") for r in rows) < len(rows)  # some cells measured, not all estimated
+    # The per-cell goal lines split the same 128 cells into fixed-encoder and learned ones.
+    kinds = {line.split(" cells within")[0]: line for line in proc.stdout.splitlines() if " cells within " in line}
+    assert set(kinds) == {"fixed", "learned"}
+    counted = sum(int(line.split(" of ")[1].split(" ")[0]) for line in kinds.values())
+    assert counted == len(rows)
+    learned = sum(r["cell"].startswith("encoder=learned_") for r in rows)
+    assert f" of {learned} " in kinds["learned"]
