@@ -26,6 +26,7 @@ MEASURED = [
     ("table3_fixed_cells.csv", "table3", "epyc_epoch_loop_clock_s"),  # 38 fixed-encoder cells
     ("propagation_cells.csv", "table1", "clock_s"),  # 16 learned-SLM cells, the axis-by-axis PSF
     ("propagation_table3_cells.csv", "table3", "clock_s"),  # learned-SLM cells, the axis-by-axis PSF
+    ("phase_mask_cells.csv", "table1", "clock_s"),  # the learned phase mask's 8 cells
 ]
 _LINE = re.compile(r"^\s*\w+\s+([\d.]+) s \((\w+)\)\s+(\S+)\s*$")
 
