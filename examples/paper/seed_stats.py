@@ -20,7 +20,8 @@ import statistics
 from pathlib import Path
 
 TRANSFORMS = ("shift", "rescale", "rotate", "perspective")
-EPYC = Path(__file__).resolve().parents[2] / "docs" / "results" / "epyc"
+RESULTS = Path(__file__).resolve().parents[2] / "docs" / "results"
+EPYC = RESULTS / "epyc"
 # (file, accuracy column) per encoder for --epyc
 EPYC_FILES = {"learned_slm": ("propagation_table3_cells.csv", "test_acc"),
               "fixed_slm": ("table3_fixed_cells.csv", "epyc_test_acc")}
@@ -46,7 +47,7 @@ def epyc_accuracies(encoder: str, transform: str) -> list[float]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("cells", nargs="?", default="docs/results/rerun/sweep_cells/table3",
+    ap.add_argument("cells", nargs="?", type=Path, default=RESULTS / "rerun" / "sweep_cells" / "table3",
                     help="a sweep's cells folder (default: the re-run's committed cells)")
     ap.add_argument("--epyc", action="store_true", help="read the AMD machines' CSVs in docs/results/epyc instead")
     args = ap.parse_args()
@@ -54,7 +55,7 @@ def main() -> None:
         if args.epyc:
             learned, fixed = epyc_accuracies("learned_slm", t), epyc_accuracies("fixed_slm", t)
         else:
-            learned, fixed = accuracies(Path(args.cells), "learned_slm", t), accuracies(Path(args.cells), "fixed_slm", t)
+            learned, fixed = accuracies(args.cells, "learned_slm", t), accuracies(args.cells, "fixed_slm", t)
         if min(len(learned), len(fixed)) < 2:
             print(f"{t}: fewer than two seeds (learned {len(learned)}, fixed {len(fixed)})")
             continue
