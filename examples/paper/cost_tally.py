@@ -80,11 +80,18 @@ def tally() -> tuple[list[dict], dict]:
 CELL_GOALS = {"fixed": 60.0, "learned": 600.0}
 
 
+def learned(cell: str) -> bool:
+    """Whether a cell's encoder is trained (the encoder registry's ``learnable`` flag, from the cell's name)."""
+    from optoenc.plugins import get_registry
+
+    return get_registry("encoder").get(re.match(r"encoder=([^,]+)", cell).group(1)).learnable
+
+
 def per_cell_goals(rows: list[dict]) -> list[str]:
     """One line per kind of cell: how many are within the issue's per-cell goal, and the slowest."""
     out = []
     for kind, goal in CELL_GOALS.items():
-        mine = [r for r in rows if r["cell"].startswith("encoder=learned_") == (kind == "learned")]
+        mine = [r for r in rows if learned(r["cell"]) == (kind == "learned")]
         within = sum(r["seconds"] <= goal for r in mine)
         slow = max(mine, key=lambda r: r["seconds"])
         out.append(f"{kind} cells within {goal:.0f} s: {within} of {len(mine)} (slowest {slow['seconds']:.0f} s: "
