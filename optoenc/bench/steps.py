@@ -12,7 +12,9 @@ names the pair (:data:`AGAINST`):
 * ``banded``: :attr:`OpticalEncoder.banded_operators` off (dense products)
   -> on (the correlation tensors' zeros skipped);
 * ``propagation``: ``fidelity.propagation`` ``blas`` (the mask's PSF by 2-D
-  FFTs) -> ``separable`` (axis by axis, the LCD encoders).
+  FFTs) -> ``separable`` (axis by axis, the LCD encoders);
+* ``sorted``: :attr:`OpticalEncoder.sorted_band_rows` off (the banded build's
+  blocks of consecutive rows) -> on (blocks of rows sorted by their band).
 
 The allocator setting (:mod:`optoenc.training.allocator`) cannot be compared
 in one process: glibc reuses the free chunks a process has kept whatever its
@@ -45,6 +47,10 @@ def _set_banded(enc, on: bool) -> None:
     enc.banded_operators = on
 
 
+def _set_sorted(enc, on: bool) -> None:
+    enc.sorted_band_rows = on
+
+
 def _set_propagation(enc, on: bool) -> None:
     enc.knobs = enc.knobs.replace(propagation="separable" if on else "blas")
     enc.invalidate_psf()
@@ -55,6 +61,7 @@ AGAINST = {
     "support": ("whole operator", "support region", _set_support),
     "banded": ("dense build", "banded build", _set_banded),
     "propagation": ("2-D BLAS PSF", "axis-by-axis PSF", _set_propagation),
+    "sorted": ("consecutive band rows", "sorted band rows", _set_sorted),
 }
 
 

@@ -126,6 +126,10 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
     #: :meth:`measure` applies it to the rows of the scenes that are nonzero (:mod:`optoenc.encoders.banded`;
     #: exact); False: the dense products (the reference of ``optoenc bench steps --against banded``).
     banded_operators: bool = True
+    #: The banded build may take the correlation tensors' rows in the order of their bands, in taller
+    #: blocks (:class:`optoenc.encoders.banded.BandPlan`, ``sort_rows``; exact); False: consecutive rows
+    #: only (the reference of ``optoenc bench steps --against sorted``).
+    sorted_band_rows: bool = True
 
     def lr_scales(self) -> dict[str, float]:
         """Learning rate of named parameters relative to ``trainer.encoder_lr`` (others: 1).
@@ -345,12 +349,12 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         spans = self._region_spans(spans, tuple(scene_shape), region) if self.banded_operators else False
         if region is not None:
             r0, r1, c0, c1 = region
-            return imaging.scene_operator(psf.to(self.operator_dtype), ry[:, r0:r1], rx[:, c0:c1], spans)
+            return imaging.scene_operator(psf.to(self.operator_dtype), ry[:, r0:r1], rx[:, c0:c1], spans, self.sorted_band_rows)
         key = ("op", tuple(scene_shape), height, self._state_key())
         cached = self._op_cache.get("op")
         if cached is not None and cached[0] == key:
             return cached[1]
-        op = imaging.scene_operator(psf.to(self.operator_dtype), ry, rx, spans)
+        op = imaging.scene_operator(psf.to(self.operator_dtype), ry, rx, spans, self.sorted_band_rows)
         self._op_cache["op"] = (key, op)
         return op
 

@@ -261,7 +261,7 @@ def correlation_tensor(box: torch.Tensor, place_m: torch.Tensor, n_psf: int, sub
 _MIN_BANDED_MACS = 20_000_000
 
 
-def scene_operator(psf: torch.Tensor, ry: torch.Tensor, rx: torch.Tensor, spans=None) -> torch.Tensor:
+def scene_operator(psf: torch.Tensor, ry: torch.Tensor, rx: torch.Tensor, spans=None, sort_rows: bool = True) -> torch.Tensor:
     """The linear map from scene pixels to embedding pixels for a given PSF.
 
     Args:
@@ -272,6 +272,9 @@ def scene_operator(psf: torch.Tensor, ry: torch.Tensor, rx: torch.Tensor, spans=
             tensors (:func:`optoenc.encoders.banded.row_spans`), to skip
             finding them; computed here when None. False: the dense
             products whatever the tensors' band (a reference).
+        sort_rows: the banded build may take a correlation tensor's rows in
+            the order of their spans (:class:`optoenc.encoders.banded.BandPlan`);
+            False: consecutive rows only (a reference).
 
     Returns:
         ``(C, a, b, h, w)`` operator ``A`` with
@@ -285,7 +288,7 @@ def scene_operator(psf: torch.Tensor, ry: torch.Tensor, rx: torch.Tensor, spans=
     if (spans is not False and psf.device.type == "cpu" and min(rows_first, columns_first) >= _MIN_BANDED_MACS
             and not (ry.requires_grad or rx.requires_grad)):
         sy, sx = spans if spans is not None else (banded.row_spans(ry2), banded.row_spans(rx2))
-        py, px = banded.BandPlan(*sy, Hp, C * b * w), banded.BandPlan(*sx, Wp, C * Hp)
+        py, px = banded.cached_plan(*sy, Hp, C * b * w, sort_rows), banded.cached_plan(*sx, Wp, C * Hp, sort_rows)
         # Small blocked products run at a fraction of one large product's rate (call overhead, short
         # inner loops): banded only where it costs at most half the multiply-adds (banded._MAX_FRACTION).
         if py.cost + px.cost <= banded._MAX_FRACTION * C * min(rows_first, columns_first):

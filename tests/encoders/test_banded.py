@@ -13,8 +13,9 @@ DT = torch.float64
 
 @pytest.fixture
 def small_is_large(monkeypatch):
-    """The cases here are small; they stand for large ones: no per-block or minimum-size overheads."""
+    """The cases here are small; they stand for large ones: no per-block, row-copy or minimum-size overheads."""
     monkeypatch.setattr(banded, "_BLOCK_OVERHEAD", 0)
+    monkeypatch.setattr(banded, "_ROW_COPY", 0)
     monkeypatch.setattr(im, "_MIN_BANDED_MACS", 0)
 
 
@@ -61,6 +62,81 @@ def test_banded_mm_is_the_dense_product_and_its_gradient(zero_rows, small_is_lar
     torch.testing.assert_close(out, a @ b, rtol=1e-12, atol=1e-12)
     assert bool((out[list(zero_rows)] == 0).all())
     assert torch.autograd.gradcheck(lambda x: banded.banded_mm(a, x, plan), (b,))
+
+
+def sawtooth_matrix(groups: int, rows: int, k: int, width: int, g: torch.Generator) -> torch.Tensor:
+    """Rows ``(i, j)`` (``groups`` x ``rows``) nonzero on ``width`` columns from ``k0 = 9 i + 40 - 2 j``:
+    the row correlation tensor's shape, whose band climbs back at every embedding row ``i``."""
+    a = torch.zeros(groups * rows, k, dtype=DT)
+    for i in range(groups):
+        for j in range(rows):
+            k0 = min(k - 1, max(0, 9 * i + 40 - 2 * j))
+            a[i * rows + j, k0 : k0 + width] = torch.rand(min(width, k - k0), generator=g, dtype=DT) + 0.1
+    return a
+
+
+def test_sorted_plan_follows_a_band_that_restarts_and_is_the_dense_product(small_is_large):
+    # A band that climbs back every 20 rows: blocks of consecutive rows straddle the jumps, blocks of rows
+    # sorted by their span do not, so the sorted plan is taken, with fewer multiply-adds. Its product and
+    # gradient equal the dense ones (float64, the same terms in another order: 1e-12), every nonzero entry
+    # lies in some block, and all-zero rows (placed anywhere) come out exactly zero.
+    g = torch.Generator().manual_seed(6)
+    a = sawtooth_matrix(12, 20, 150, 6, g)
+    a[[3, 77, 200]] = 0
+    b = torch.rand(150, 9, generator=g, dtype=DT, requires_grad=True)
+    plain, srt = banded.BandPlan.of(a, 9), banded.BandPlan.of(a, 9, sort_rows=True)
+    assert plain.order is None and srt.order is not None
+    # Blocks of 4 consecutive rows of a band sloping 2 a row span 12 columns for 6 nonzero (more across a
+    # jump); sorted rows starting within a few columns of each other span ~8 (0.62 of the plain plan here).
+    assert srt.macs < 0.7 * plain.macs
+    covered = torch.zeros_like(a, dtype=torch.bool)
+    for r0, r1, k0, k1 in srt.blocks:
+        covered[srt.order[r0:r1], k0:k1] = True
+    assert bool(covered[a != 0].all())
+    out = banded.banded_mm(a, b, srt)
+    torch.testing.assert_close(out, a @ b, rtol=1e-12, atol=1e-12)
+    assert bool((out[[3, 77, 200]] == 0).all())
+    assert torch.autograd.gradcheck(lambda x: banded.banded_mm(a, x, srt), (b,))
+    with pytest.raises(ValueError, match="consecutive"):
+        banded.column_banded_mm(a.T.contiguous(), torch.rand(4, 240, dtype=DT), srt)
+
+
+def test_sorted_rows_weighed_with_their_copies(monkeypatch):
+    # With the real overheads, a band that slopes steadily keeps its consecutive rows (sorting them gives
+    # the same blocks, and the copies would only add cost), multiplying a factor wide enough for blocks to
+    # pay (as test_plan_weighs_the_per_block_overhead_against_the_work_it_saves); the sawtooth keeps them
+    # too when a row's copy is priced above any band it could save.
+    g = torch.Generator().manual_seed(7)
+    steady = banded.BandPlan.of(band_matrix(300, 120, 5, 0.37, g), 100_000, sort_rows=True)
+    assert steady.banded and steady.order is None
+    saw = sawtooth_matrix(12, 20, 150, 6, g)
+    monkeypatch.setattr(banded, "_BLOCK_OVERHEAD", 0)
+    monkeypatch.setattr(banded, "_ROW_COPY", 0)
+    assert banded.BandPlan.of(saw, 9, sort_rows=True).order is not None
+    monkeypatch.setattr(banded, "_ROW_COPY", 150)  # a row's copy dearer than its whole width
+    assert banded.BandPlan.of(saw, 9, sort_rows=True).order is None
+
+
+def test_cached_plan_is_reused_for_the_same_spans_only(monkeypatch):
+    # The same spans and sizes give the same plan object (a learned encoder plans every step); another
+    # width, sorting choice or span gives another plan; the oldest plans are dropped beyond _MAX_PLANS;
+    # and a plan made under other overheads is not reused (its blocks could differ).
+    monkeypatch.setattr(banded, "_PLANS", type(banded._PLANS)())
+    monkeypatch.setattr(banded, "_MAX_PLANS", 3)
+    g = torch.Generator().manual_seed(8)
+    first, last = banded.row_spans(sawtooth_matrix(12, 20, 150, 6, g))
+    p = banded.cached_plan(first, last, 150, 9)
+    assert banded.cached_plan(first.clone(), last.clone(), 150, 9) is p
+    assert banded.cached_plan(first, last, 150, 10) is not p
+    assert banded.cached_plan(first, last, 150, 9, sort_rows=True) is not p
+    moved = last.clone()
+    moved[5] += 1
+    assert banded.cached_plan(first, moved, 150, 9) is not p  # a fourth plan: p, the oldest, is dropped
+    assert len(banded._PLANS) == 3
+    assert banded.cached_plan(first, last, 150, 9) is not p
+    q = banded.cached_plan(first, last, 150, 9)
+    monkeypatch.setattr(banded, "_BLOCK_OVERHEAD", 0)
+    assert banded.cached_plan(first, last, 150, 9) is not q
 
 
 def test_column_banded_mm_is_the_dense_product_and_its_gradient(small_is_large):
@@ -122,13 +198,17 @@ def test_banded_scene_operator_is_the_dense_one_and_the_fine_grid_pipeline(grid,
     psf = torch.rand(2, *grid, generator=g, dtype=DT, requires_grad=True)
     calls = []
     real = banded.banded_mm
-    monkeypatch.setattr(banded, "banded_mm", lambda a, b, plan=None: calls.append(a.shape) or real(a, b, plan))
+    monkeypatch.setattr(banded, "banded_mm", lambda a, b, plan=None: calls.append((a.shape, plan.order is not None)) or real(a, b, plan))
     op = im.scene_operator(psf, ry, rx)
     assert len(calls) == 2, "the banded build was not taken"
-    assert calls[0] == (rx.shape[0] * rx.shape[1], rx.shape[2])  # columns first (the cheap layout copy)
+    assert calls[0][0] == (rx.shape[0] * rx.shape[1], rx.shape[2])  # columns first (the cheap layout copy)
+    assert calls[1][1], "the row tensor's band restarts at every embedding row: its rows are taken sorted"
+    consecutive = im.scene_operator(psf, ry, rx, sort_rows=False)
+    assert not any(srt for _, srt in calls[2:])
     dense = im.scene_operator(psf, ry.detach().clone().requires_grad_(), rx)  # dense path
-    assert len(calls) == 2  # a correlation tensor that requires a gradient takes the dense products
+    assert len(calls) == 4  # a correlation tensor that requires a gradient takes the dense products
     torch.testing.assert_close(op, dense, rtol=1e-12, atol=1e-12)
+    torch.testing.assert_close(consecutive, dense, rtol=1e-12, atol=1e-12)
     x = torch.rand(3, 1, *scene, generator=g, dtype=DT)
     ref = im.integrate(im.fft_convolve(im.place(x, grid, height), psf), emb)
     torch.testing.assert_close(im.apply_operator(op, x), ref, rtol=1e-11, atol=1e-11)
