@@ -55,10 +55,16 @@ _BLOCK_OVERHEAD = 200_000
 # multiply-adds: one large GEMM runs closer to the machine's peak than many small ones.
 _MAX_FRACTION = 0.5
 # A plan over sorted rows copies every output row once from its block's buffer (and gathers every
-# gradient row once backward): about 0.4 ns an entry against ~0.03 ns a multiply-add of a product on one
-# AVX2 core (Table 3's row factor: 5 ms for its 12 M entries), so ~10 multiply-adds an entry. Each of its
-# blocks also makes a second call (the copy), priced as one more block.
-_ROW_COPY = 10
+# gradient row once backward): about 0.4 ns an entry on one AVX2 core (Table 3's row factor: 5 ms for its
+# 12 M entries), against the ~0.07 ns a modelled multiply-add costs in the consecutive plan's short
+# products there (22 ms for 218 M multiply-adds and 524 blocks), so ~6; 4, as the taller blocks' products
+# also run faster a multiply-add than the model counts. Each of its blocks also makes a second call (the
+# copy), priced as one more block.
+_ROW_COPY = 4
+# Sorted rows are taken where the model puts them at most at this fraction of the consecutive plan's cost:
+# near a tie the model is not that exact (Table 1's 12x16 row product, 336 rows by 448 columns: modelled
+# 2 % cheaper sorted, measured 3 % dearer in the training step).
+_SORT_MARGIN = 0.9
 
 
 def row_spans(a: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -109,8 +115,10 @@ class BandPlan:
         orders = [None]
         if sort_rows:  # by where each row's span starts, then ends (all-zero rows, [k, 0), come last)
             orders.append(np.argsort(first * (k + 1) + last, kind="stable"))
-        best = None
+        best, plain = None, None
         for order in orders:
+            if order is not None:
+                plain = best
             fo, lo = (first, last) if order is None else (first[order], last[order])
             for rows in block_rows:
                 nb = -(-m // rows)
@@ -124,6 +132,8 @@ class BandPlan:
                 cost = macs + _BLOCK_OVERHEAD * int(live.sum())
                 if order is not None:  # the rows' copies, and a second call (the copy) for every block
                     cost += _ROW_COPY * n * int(sizes[live].sum()) + _BLOCK_OVERHEAD * int(live.sum())
+                    if cost > _SORT_MARGIN * plain[0]:
+                        continue
                 if best is None or cost < best[0]:
                     best = (cost, rows, f, l_, live, macs, order)
         cost, rows, f, l_, live, macs, order = best
@@ -160,7 +170,7 @@ def cached_plan(first: torch.Tensor, last: torch.Tensor, k: int, n: int, sort_ro
     step; the last ``_MAX_PLANS`` plans are kept (least recently used dropped). Plans are read-only.
     """
     key = (np.asarray(first).tobytes(), np.asarray(last).tobytes(), int(k), int(n), bool(sort_rows),
-           _BLOCK_ROWS, _BLOCK_OVERHEAD, _MAX_FRACTION, _ROW_COPY)
+           _BLOCK_ROWS, _BLOCK_OVERHEAD, _MAX_FRACTION, _ROW_COPY, _SORT_MARGIN)
     with _PLANS_LOCK:
         plan = _PLANS.get(key)
         if plan is not None:

@@ -115,6 +115,16 @@ def test_sorted_rows_weighed_with_their_copies(monkeypatch):
     assert banded.BandPlan.of(saw, 9, sort_rows=True).order is not None
     monkeypatch.setattr(banded, "_ROW_COPY", 150)  # a row's copy dearer than its whole width
     assert banded.BandPlan.of(saw, 9, sort_rows=True).order is None
+    # A near tie is left consecutive (_SORT_MARGIN): a short row tensor (4 embedding rows of 6 scene rows)
+    # whose sorted plan is modelled 5 % cheaper, copies free, takes its rows sorted only without the margin.
+    monkeypatch.setattr(banded, "_ROW_COPY", 0)
+    ry, _ = _canvas_correlations((48, 240), (6, 120), (4, 24), 20.0)
+    first, last = banded.row_spans(ry.reshape(-1, 48))
+    plain = banded.BandPlan(first, last, 48, 24 * 120)
+    assert banded.BandPlan(first, last, 48, 24 * 120, sort_rows=True).order is None
+    monkeypatch.setattr(banded, "_SORT_MARGIN", 1.0)
+    near = banded.BandPlan(first, last, 48, 24 * 120, sort_rows=True)
+    assert near.order is not None and 0.9 * plain.cost < near.cost < plain.cost
 
 
 def test_cached_plan_is_reused_for_the_same_spans_only(monkeypatch):
@@ -179,13 +189,13 @@ def _canvas_correlations(grid, scene, emb, height):
 
 
 @pytest.mark.parametrize(
-    "grid,scene,emb,height",
+    "grid,scene,emb,height,sorts",
     [
-        ((96, 128), (60, 70), (8, 10), 90.0),  # a canvas larger than the grid's embedding pixels (Table 3)
-        ((48, 240), (6, 120), (4, 24), 20.0),  # few scene rows, many columns
+        ((96, 128), (60, 70), (8, 10), 90.0, True),  # a canvas larger than the grid's embedding pixels (Table 3)
+        ((48, 240), (6, 120), (4, 24), 20.0, False),  # few scene rows, many columns: 24 rows, nothing to sort
     ],
 )
-def test_banded_scene_operator_is_the_dense_one_and_the_fine_grid_pipeline(grid, scene, emb, height, monkeypatch,
+def test_banded_scene_operator_is_the_dense_one_and_the_fine_grid_pipeline(grid, scene, emb, height, sorts, monkeypatch,
                                                                          small_is_large):
     # Real correlation tensors of a scene much larger than an embedding pixel are banded; the banded build
     # must give the dense build's operator and gradient (float64: same terms, other order of sums; 1e-12)
@@ -202,7 +212,8 @@ def test_banded_scene_operator_is_the_dense_one_and_the_fine_grid_pipeline(grid,
     op = im.scene_operator(psf, ry, rx)
     assert len(calls) == 2, "the banded build was not taken"
     assert calls[0][0] == (rx.shape[0] * rx.shape[1], rx.shape[2])  # columns first (the cheap layout copy)
-    assert calls[1][1], "the row tensor's band restarts at every embedding row: its rows are taken sorted"
+    # The row tensor's band restarts at every embedding row: on the canvas its rows are taken sorted.
+    assert calls[1][1] == sorts
     consecutive = im.scene_operator(psf, ry, rx, sort_rows=False)
     assert not any(srt for _, srt in calls[2:])
     dense = im.scene_operator(psf, ry.detach().clone().requires_grad_(), rx)  # dense path
