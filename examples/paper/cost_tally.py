@@ -27,6 +27,8 @@ MEASURED = [
     ("propagation_cells.csv", "table1", "clock_s"),  # 16 learned-SLM cells, the axis-by-axis PSF
     ("propagation_table3_cells.csv", "table3", "clock_s"),  # learned-SLM cells, the axis-by-axis PSF
     ("phase_mask_cells.csv", "table1", "clock_s"),  # the learned phase mask's 8 cells
+    ("sorted_table3_cells.csv", "table3", "clock_s"),  # learned-SLM cells, the build's rows sorted by band
+    ("table3_fixed_rerun_cells.csv", "table3", "clock_s"),  # the coded aperture's shift and rescale cells again
 ]
 _LINE = re.compile(r"^\s*\w+\s+([\d.]+) s \((\w+)\)\s+(\S+)\s*$")
 
