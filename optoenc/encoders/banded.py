@@ -20,8 +20,10 @@ operator, whose rows ``(a, h)`` restart their band at every embedding row ``a``)
 rows in the order of their spans (``sort_rows``): each block is then a set of rows, not necessarily
 consecutive, whose spans start together. Its product runs into a small buffer whose rows are copied to
 their places; the blocks are taller for the same band, and a product of a few tall rows runs much
-closer to the GEMM kernels' rate than one of four (Table 3's row factor on one AVX2 core: 21.4 ms in
-524 blocks of 4 rows, 15.0 ms in 127 blocks of 16 sorted rows, copies included).
+closer to the GEMM kernels' rate than one of four (Table 3's row factor on one AVX2 core, forward: 21.4 ms
+in 524 blocks of 4 rows; 15.0 ms in 127 blocks of 16 sorted rows and 13.4 ms in 64 of 32, the plan's
+choice, copies included). Plans weigh the copies and take sorted rows only where clearly cheaper
+(``_ROW_COPY``, ``_SORT_MARGIN``); :func:`cached_plan` keeps them for the same spans.
 
 :func:`column_banded_mm` is the other side: ``X @ W.T`` for a constant ``X``
 whose *columns* are banded (a batch of digits on a canvas, sorted by where
