@@ -100,7 +100,7 @@ class BandPlan:
             columns ``[k0, k1)``; all-zero blocks are left out. Where blocks would
             not save enough (:attr:`banded` False), one block: the whole matrix.
         macs: multiply-adds of the product (``n sum (r1 - r0) (k1 - k0)``).
-        cost: ``macs`` plus the per-block overhead, in multiply-adds.
+        cost: ``macs`` plus the per-block overhead (for sorted rows also their copies), in multiply-adds.
         banded: whether the plan skips zeros (False: one dense product).
         order: ``(m,)`` the rows in the order the blocks count them (block ``(r0, r1, k0, k1)`` holds
             rows ``order[r0:r1]``), or None: consecutive rows.
