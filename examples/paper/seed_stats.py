@@ -1,11 +1,13 @@
 """Learned vs fixed SLM at 24x32 under each transform (drawn once): mean ± sample std over seeds, Welch t.
 
     python examples/paper/seed_stats.py [CELLS]   # CELLS: default docs/results/rerun/sweep_cells/table3
-    python examples/paper/seed_stats.py --epyc    # the AMD machines' runs with the current code
+    python examples/paper/seed_stats.py --epyc    # the AMD machines' runs with the axis-by-axis PSF
 
 Reads each cell's summary.json (validation-selected test accuracy), or with ``--epyc`` the accuracies of
 docs/results/epyc/ (learned SLM: ``propagation_table3_cells.csv``, the axis-by-axis PSF; fixed SLM:
 ``table3_fixed_cells.csv``, the epoch loop); cells with transforms redrawn every epoch are left out.
+(``sorted_table3_cells.csv`` re-ran six of those learned cells for their clocks, with the build's rows
+sorted by band; their accuracies are within the seed spread of these and are not pooled with them.)
 |t| well above 2 puts the difference beyond seed noise.
 """
 

@@ -104,7 +104,7 @@ class BandPlan:
         banded: whether the plan skips zeros (False: one dense product).
         order: ``(m,)`` the rows in the order the blocks count them (block ``(r0, r1, k0, k1)`` holds
             rows ``order[r0:r1]``), or None: consecutive rows.
-        block_rows: the tallest block's rows (its buffer, for a sorted plan).
+        tallest: the tallest block's rows (the buffer a sorted plan's products run into).
     """
 
     def __init__(self, first: torch.Tensor, last: torch.Tensor, k: int, n: int, block_rows=_BLOCK_ROWS,
@@ -150,7 +150,7 @@ class BandPlan:
             self.blocks = [(0, m, 0, k)]
             self.macs = self.cost = m * k * n
         self.covers_all_rows = sum(r1 - r0 for r0, r1, _, _ in self.blocks) == m
-        self.block_rows = max(r1 - r0 for r0, r1, _, _ in self.blocks)
+        self.tallest = max(r1 - r0 for r0, r1, _, _ in self.blocks)
 
     @classmethod
     def of(cls, a: torch.Tensor, n: int, sort_rows: bool = False) -> "BandPlan":
@@ -171,7 +171,8 @@ def cached_plan(first: torch.Tensor, last: torch.Tensor, k: int, n: int, sort_ro
     Planning costs 0.1-0.7 ms (a few thousand spans, ten candidate blockings), 1-5 % of a learned cell's
     step; the last ``_MAX_PLANS`` plans are kept (least recently used dropped). Plans are read-only.
     """
-    key = (np.asarray(first).tobytes(), np.asarray(last).tobytes(), int(k), int(n), bool(sort_rows),
+    # int64 bytes: spans of another integer dtype are the same key (and bytes of unequal spans never match)
+    key = (np.asarray(first, dtype=np.int64).tobytes(), np.asarray(last, dtype=np.int64).tobytes(), int(k), int(n), bool(sort_rows),
            _BLOCK_ROWS, _BLOCK_OVERHEAD, _MAX_FRACTION, _ROW_COPY, _SORT_MARGIN)
     with _PLANS_LOCK:
         plan = _PLANS.get(key)
@@ -196,7 +197,7 @@ class _BandedMM(torch.autograd.Function):
         else:
             order = plan.order.to(a.device)
             a = a.index_select(0, order)  # the rows in the plan's order
-            buf = b.new_empty(plan.block_rows, b.shape[1])
+            buf = b.new_empty(plan.tallest, b.shape[1])
             for r0, r1, k0, k1 in plan.blocks:
                 rows = buf[: r1 - r0]
                 torch.mm(a[r0:r1, k0:k1], b[k0:k1], out=rows)
@@ -218,7 +219,7 @@ class _BandedMM(torch.autograd.Function):
                     gb[k0:k1].addmm_(a[r0:r1, k0:k1].T, grad[r0:r1])
             else:
                 order = plan.order.to(grad.device)
-                buf = grad.new_empty(plan.block_rows, grad.shape[1])
+                buf = grad.new_empty(plan.tallest, grad.shape[1])
                 for r0, r1, k0, k1 in plan.blocks:
                     rows = torch.index_select(grad, 0, order[r0:r1], out=buf[: r1 - r0])
                     gb[k0:k1].addmm_(a[r0:r1, k0:k1].T, rows)

@@ -137,6 +137,7 @@ def test_cached_plan_is_reused_for_the_same_spans_only(monkeypatch):
     first, last = banded.row_spans(sawtooth_matrix(12, 20, 150, 6, g))
     p = banded.cached_plan(first, last, 150, 9)
     assert banded.cached_plan(first.clone(), last.clone(), 150, 9) is p
+    assert banded.cached_plan(first.int(), last.int(), 150, 9) is p  # the same spans in another integer dtype
     assert banded.cached_plan(first, last, 150, 10) is not p
     assert banded.cached_plan(first, last, 150, 9, sort_rows=True) is not p
     moved = last.clone()
