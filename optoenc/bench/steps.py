@@ -14,7 +14,10 @@ names the pair (:data:`AGAINST`):
 * ``propagation``: ``fidelity.propagation`` ``blas`` (the mask's PSF by 2-D
   FFTs) -> ``separable`` (axis by axis, the LCD encoders);
 * ``sorted``: :attr:`OpticalEncoder.sorted_band_rows` off (the banded build's
-  blocks of consecutive rows) -> on (blocks of rows sorted by their band).
+  blocks of consecutive rows) -> on (blocks of rows sorted by their band);
+* ``rows``: :attr:`OpticalEncoder.row_major_operators` off (the sorted build's
+  operator copied into the ``(C, a, b, h, w)`` layout) -> on (held and applied
+  canvas row by canvas row).
 
 The allocator setting (:mod:`optoenc.training.allocator`) cannot be compared
 in one process: glibc reuses the free chunks a process has kept whatever its
@@ -51,6 +54,10 @@ def _set_sorted(enc, on: bool) -> None:
     enc.sorted_band_rows = on
 
 
+def _set_rows(enc, on: bool) -> None:
+    enc.row_major_operators = on
+
+
 def _set_propagation(enc, on: bool) -> None:
     enc.knobs = enc.knobs.replace(propagation="separable" if on else "blas")
     enc.invalidate_psf()
@@ -62,6 +69,7 @@ AGAINST = {
     "banded": ("dense build", "banded build", _set_banded),
     "propagation": ("2-D BLAS PSF", "axis-by-axis PSF", _set_propagation),
     "sorted": ("consecutive band rows", "sorted band rows", _set_sorted),
+    "rows": ("(C, a, b, h, w) operator", "canvas-row operator", _set_rows),
 }
 
 

@@ -30,17 +30,23 @@ whose *columns* are banded (a batch of digits on a canvas, sorted by where
 they start: each canvas pixel is lit by a run of consecutive scenes), with its
 gradient with respect to ``W`` (the scene operator). Its plan is the
 :class:`BandPlan` of ``X.T``.
+
+:func:`row_runs_mm` is the same product for an operator held canvas row by canvas row (``(h, r, w)``,
+each row's ``(r, w)`` block contiguous: the layout the build produces with its rows sorted, see
+:func:`optoenc.encoders.imaging.scene_operator`): one product per canvas row, with the run of scenes
+that light it.
 """
 
 from __future__ import annotations
 
+import copy
 import threading
 from collections import OrderedDict
 
 import numpy as np
 import torch
 
-__all__ = ["BandPlan", "banded_mm", "cached_plan", "column_banded_mm", "row_spans"]
+__all__ = ["BandPlan", "banded_mm", "cached_plan", "column_banded_mm", "row_runs_mm", "row_spans"]
 
 # Candidate row-block sizes. Larger blocks amortise each product's call overhead and feed the GEMM
 # kernels more rows; smaller ones follow a sloping band more tightly. The plan takes the candidate with
@@ -105,6 +111,7 @@ class BandPlan:
         order: ``(m,)`` the rows in the order the blocks count them (block ``(r0, r1, k0, k1)`` holds
             rows ``order[r0:r1]``), or None: consecutive rows.
         tallest: the tallest block's rows (the buffer a sorted plan's products run into).
+        zero_rows: ``(n,)`` int64, the rows no block holds (all zero in the product), or None: none.
     """
 
     def __init__(self, first: torch.Tensor, last: torch.Tensor, k: int, n: int, block_rows=_BLOCK_ROWS,
@@ -150,7 +157,40 @@ class BandPlan:
             self.blocks = [(0, m, 0, k)]
             self.macs = self.cost = m * k * n
         self.covers_all_rows = sum(r1 - r0 for r0, r1, _, _ in self.blocks) == m
+        # The rows no block holds (all-zero rows), zeroed alone: zeroing the whole product first cost 5 ms a
+        # step on Table 3's 49-MB operator, whose all-zero rows (embedding rows out of a canvas row's reach)
+        # are a few percent.
+        self.zero_rows = None
+        if not self.covers_all_rows:
+            held = np.zeros(m, dtype=bool)
+            for r0, r1, _, _ in self.blocks:
+                held[r0:r1] = True
+            rows = np.flatnonzero(~held) if order is None or not self.banded else order[~held]
+            self.zero_rows = torch.from_numpy(np.ascontiguousarray(rows, dtype=np.int64))
         self.tallest = max(r1 - r0 for r0, r1, _, _ in self.blocks)
+
+    def regrouped(self, groups: int) -> "BandPlan":
+        """This plan for the matrix with its rows ``(g, i)`` (``groups`` x ``m / groups``) in the order ``(i, g)``.
+
+        The same blocks of the same rows, each row found at its new place: the blocks gather their rows
+        and place their products there (as a sorted plan does). Kept on this plan for the next call.
+        """
+        m = self.shape[0]
+        if groups < 1 or m % groups:
+            raise ValueError(f"regrouped: {m} rows are not {groups} groups")
+        cache = self.__dict__.setdefault("_regrouped", {})
+        if groups not in cache:
+            size = m // groups
+            old = torch.arange(m)
+            place = (old % size) * groups + old // size  # new index of each old row
+            plan = copy.copy(self)
+            plan._regrouped = {}
+            plan.order = place if self.order is None else place[self.order]
+            plan.zero_rows = None if self.zero_rows is None else place[self.zero_rows]
+            if not self.banded:  # one dense block over rows in their new order: a plain product again
+                plan.order = None
+            cache[groups] = plan
+        return cache[groups]
 
     @classmethod
     def of(cls, a: torch.Tensor, n: int, sort_rows: bool = False) -> "BandPlan":
@@ -190,7 +230,9 @@ def cached_plan(first: torch.Tensor, last: torch.Tensor, k: int, n: int, sort_ro
 class _BandedMM(torch.autograd.Function):
     @staticmethod
     def forward(ctx, b, a, plan):
-        out = (b.new_empty if plan.covers_all_rows else b.new_zeros)(a.shape[0], b.shape[1])
+        out = b.new_empty(a.shape[0], b.shape[1])
+        if plan.zero_rows is not None:
+            out.index_fill_(0, plan.zero_rows.to(out.device), 0)
         if plan.order is None:
             for r0, r1, k0, k1 in plan.blocks:
                 torch.mm(a[r0:r1, k0:k1], b[k0:k1], out=out[r0:r1])
@@ -292,3 +334,45 @@ def column_banded_mm(x: torch.Tensor, w: torch.Tensor, plan: BandPlan | None = N
     if plan.shape != (x.shape[1], x.shape[0]):
         raise ValueError(f"column_banded_mm: the plan is for a {plan.shape} matrix, not the transpose of {tuple(x.shape)}")
     return _ColumnBandedMM.apply(w, x.contiguous(), plan)
+
+
+class _RowRunsMM(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, m, xs, runs):
+        out = xs.new_zeros(xs.shape[0], m.shape[1])
+        for p, (s0, s1) in enumerate(runs):
+            if s1 > s0:
+                out[s0:s1].addmm_(xs[s0:s1, p], m[p].T)
+        ctx.save_for_backward(xs)
+        ctx.runs, ctx.m_shape = runs, m.shape
+        return out
+
+    @staticmethod
+    def backward(ctx, grad):
+        (xs,) = ctx.saved_tensors
+        gm = None
+        if ctx.needs_input_grad[0]:
+            # Each canvas row's block of the gradient is written once (no zeroing first), unlit rows zeroed.
+            grad = grad.contiguous()
+            gm = grad.new_empty(ctx.m_shape)
+            for p, (s0, s1) in enumerate(ctx.runs):
+                if s1 > s0:
+                    torch.mm(grad[s0:s1].T, xs[s0:s1, p], out=gm[p])
+                else:
+                    gm[p].zero_()
+        return gm, None, None
+
+
+def row_runs_mm(m: torch.Tensor, xs: torch.Tensor, runs) -> torch.Tensor:
+    """``sum_p xs[:, p] @ m[p].T``: ``(B, h, w)`` constant scenes through an ``(h, r, w)`` operator -> ``(B, r)``.
+
+    ``m[p]`` is the operator's part for canvas row ``p``; ``runs[p] = (s0, s1)``: only scenes ``s0:s1`` may
+    be nonzero in row ``p`` (the others' row ``p`` is skipped, so it must be zero; ``(0, B)`` for all).
+    One product per canvas row, each reading its contiguous ``(r, w)`` block once for the run, and writing
+    its block of the gradient once. Differentiable with respect to ``m`` only.
+    """
+    if xs.requires_grad:
+        raise ValueError("row_runs_mm: the scenes are a constant here; they must not require a gradient")
+    if m.dim() != 3 or xs.dim() != 3 or xs.shape[1:] != (m.shape[0], m.shape[2]) or len(runs) != m.shape[0]:
+        raise ValueError(f"row_runs_mm: shapes {tuple(m.shape)} and {tuple(xs.shape)} with {len(runs)} runs do not multiply")
+    return _RowRunsMM.apply(m.contiguous(), xs, [(int(s0), int(s1)) for s0, s1 in runs])

@@ -130,6 +130,10 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
     #: blocks (:class:`optoenc.encoders.banded.BandPlan`, ``sort_rows``; exact); False: consecutive rows
     #: only (the reference of ``optoenc bench steps --against sorted``).
     sorted_band_rows: bool = True
+    #: The sorted build's operator is held canvas row by canvas row and applied so, without copies
+    #: (:func:`optoenc.encoders.imaging.scene_operator`, ``row_major``; exact); False: copied into the
+    #: contiguous ``(C, a, b, h, w)`` layout (the reference of ``optoenc bench steps --against rows``).
+    row_major_operators: bool = True
 
     def lr_scales(self) -> dict[str, float]:
         """Learning rate of named parameters relative to ``trainer.encoder_lr`` (others: 1).
@@ -312,6 +316,9 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
             ry, rx = ry.to(device, self.operator_dtype), rx.to(device, self.operator_dtype)
             # Where each flattened row's nonzero entries lie: the banded build's plan (imaging.scene_operator).
             spans = tuple(banded.row_spans(r.reshape(-1, r.shape[-1])) for r in (ry, rx))
+            # ry held as (h, a, Hp), its (a, h, Hp) view: the sorted build reads it in canvas-row order
+            # without a copy, also cut to a region's rows (imaging.scene_operator).
+            ry = ry.transpose(0, 1).contiguous().transpose(0, 1)
             self._op_cache[key] = (ry, rx, spans)
         return self._op_cache[key]
 
@@ -349,12 +356,13 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         spans = self._region_spans(spans, tuple(scene_shape), region) if self.banded_operators else False
         if region is not None:
             r0, r1, c0, c1 = region
-            return imaging.scene_operator(psf.to(self.operator_dtype), ry[:, r0:r1], rx[:, c0:c1], spans, self.sorted_band_rows)
+            return imaging.scene_operator(psf.to(self.operator_dtype), ry[:, r0:r1], rx[:, c0:c1], spans, self.sorted_band_rows,
+                                          self.row_major_operators)
         key = ("op", tuple(scene_shape), height, self._state_key())
         cached = self._op_cache.get("op")
         if cached is not None and cached[0] == key:
             return cached[1]
-        op = imaging.scene_operator(psf.to(self.operator_dtype), ry, rx, spans, self.sorted_band_rows)
+        op = imaging.scene_operator(psf.to(self.operator_dtype), ry, rx, spans, self.sorted_band_rows, self.row_major_operators)
         self._op_cache["op"] = (key, op)
         return op
 

@@ -261,7 +261,8 @@ def correlation_tensor(box: torch.Tensor, place_m: torch.Tensor, n_psf: int, sub
 _MIN_BANDED_MACS = 20_000_000
 
 
-def scene_operator(psf: torch.Tensor, ry: torch.Tensor, rx: torch.Tensor, spans=None, sort_rows: bool = True) -> torch.Tensor:
+def scene_operator(psf: torch.Tensor, ry: torch.Tensor, rx: torch.Tensor, spans=None, sort_rows: bool = True,
+                   row_major: bool = True) -> torch.Tensor:
     """The linear map from scene pixels to embedding pixels for a given PSF.
 
     Args:
@@ -275,24 +276,33 @@ def scene_operator(psf: torch.Tensor, ry: torch.Tensor, rx: torch.Tensor, spans=
         sort_rows: the banded build may take a correlation tensor's rows in
             the order of their spans (:class:`optoenc.encoders.banded.BandPlan`);
             False: consecutive rows only (a reference).
+        row_major: where the rows are sorted, return the operator held canvas row by canvas row (below);
+            False: a contiguous ``(C, a, b, h, w)`` tensor always (a reference).
 
     Returns:
         ``(C, a, b, h, w)`` operator ``A`` with
-        ``embedding[c, a, b] = sum_pq A[c, a, b, p, q] scene[c, p, q]``.
+        ``embedding[c, a, b] = sum_pq A[c, a, b, p, q] scene[c, p, q]``. The banded build with sorted
+        rows returns it as a view of an ``(h, a, C, b, w)`` tensor, canvas row by canvas row, which
+        :func:`apply_operator` multiplies without a copy (:func:`operator_rows`); other uses that need
+        the contiguous layout copy it (``.contiguous()``, ``.reshape``). ``ry`` held as ``(h, a, Hp)``
+        (``ry.transpose(0, 1)`` contiguous) spares that build a copy of it.
     """
     C, (a, h, Hp), (b, w, Wp) = psf.shape[0], ry.shape, rx.shape
-    ry2, rx2 = ry.reshape(a * h, Hp), rx.reshape(b * w, Wp)
+    rx2 = rx.reshape(b * w, Wp)
     rows_first = a * h * Wp * (Hp + b * w)  # the dense products' multiply-adds, per PSF channel
     columns_first = Hp * b * w * (Wp + a * h)
     # On a CPU only: a GPU runs one large product faster than hundreds of small ones (one launch each).
     if (spans is not False and psf.device.type == "cpu" and min(rows_first, columns_first) >= _MIN_BANDED_MACS
             and not (ry.requires_grad or rx.requires_grad)):
-        sy, sx = spans if spans is not None else (banded.row_spans(ry2), banded.row_spans(rx2))
+        sy, sx = spans if spans is not None else (banded.row_spans(ry.reshape(a * h, Hp)), banded.row_spans(rx2))
         py, px = banded.cached_plan(*sy, Hp, C * b * w, sort_rows), banded.cached_plan(*sx, Wp, C * Hp, sort_rows)
         # Small blocked products run at a fraction of one large product's rate (call overhead, short
         # inner loops): banded only where it costs at most half the multiply-adds (banded._MAX_FRACTION).
         if py.cost + px.cost <= banded._MAX_FRACTION * C * min(rows_first, columns_first):
-            return _banded_operator(psf, ry2, rx2, py, px, (a, h), (b, w))
+            row_major = row_major and py.order is not None
+            if row_major:  # sorted rows: the same plan over the rows in canvas-row order (h, a), see _banded_operator
+                py = py.regrouped(a)
+            return _banded_operator(psf, ry, rx2, py, px, (b, w), row_major)
     # Two matrix products, in the order with fewer multiply-adds, then one transposing copy into the
     # (C, a, b, h, w) layout apply_operator reads as a matrix. einsum's own plan copied the operator
     # twice more (forward and backward; docs/benchmarks.md, "Operator layout").
@@ -305,26 +315,52 @@ def scene_operator(psf: torch.Tensor, ry: torch.Tensor, rx: torch.Tensor, spans=
         # scene is large (Table 3's 109 x 146 canvas at 24x32: 4.0 instead of 5.0 GMAC; 1.13x forward
         # and backward on one AVX2 core), the same operator to float rounding.
         u = psf.reshape(C * Hp, Wp) @ rx2.T
-        m = ry2 @ u.reshape(C, Hp, b * w)
+        m = ry.reshape(a * h, Hp) @ u.reshape(C, Hp, b * w)
     return m.reshape(C, a, h, b, w).transpose(2, 3).contiguous()
 
 
-def _banded_operator(psf, ry2, rx2, py, px, ah, bw) -> torch.Tensor:
+def _banded_operator(psf, ry, rx2, py, px, bw, row_major: bool) -> torch.Tensor:
     """:func:`scene_operator` with the correlation tensors' zeros skipped (:mod:`.banded`).
 
     The correlation tensors are banded (a scene row reaches an embedding row through a few PSF rows
     only): on Table 3's 24x32 canvas 6 % and 5 % of their entries lie in the blocks' spans, and the
     build does 0.24 instead of 4.0 GMAC; the same operator up to the order of float sums. Columns
-    first: its product comes out as ``(a, h, C, b, w)``, whose copy into ``(C, a, b, h, w)`` keeps rows
-    of ``w`` intact. (Rows first would come out as ``(b, w, C, a, h)``, a copy that moves every entry
-    across the whole tensor: 69 + 84 ms forward and backward against 5 + 6 ms on Table 3's 12 M-entry
-    operator, one AVX2 core, more than the few multiply-adds it could save.)
+    first: the second product comes out with its rows those of the row tensor and its columns
+    ``(C, b, w)``. (Rows first would come out as ``(b, w, C, a, h)``, a copy that moves every entry
+    across the whole tensor: 69 + 84 ms forward and backward on Table 3's 12 M-entry operator, one AVX2
+    core.)
+
+    ``row_major`` (the rows sorted by band, ``py`` planned over them in canvas-row order ``(h, a)``):
+    the product is ``(h, a, C, b, w)``, and the operator is returned as its ``(C, a, b, h, w)`` view, not
+    copied. :func:`apply_operator` multiplies scenes by it canvas row by canvas row, each row's block
+    contiguous, with no copy either way (the copy into ``(C, a, b, h, w)`` and its gradient's copy back
+    took 5.6 + 7.5 ms of Table 3's 115-ms 24x32 shift step on one AVX2 core). Otherwise rows ``(a, h)``
+    and a contiguous ``(C, a, b, h, w)`` copy, which keeps rows of ``w`` intact.
     """
-    (C, Hp, Wp), (a, h), (b, w) = psf.shape, ah, bw
+    (C, Hp, Wp), (a, h, _), (b, w) = psf.shape, ry.shape, bw
     u = banded.banded_mm(rx2, psf.permute(2, 0, 1).reshape(Wp, C * Hp), px)  # (b w, C Hp)
     u = u.reshape(b * w, C, Hp).permute(2, 1, 0).reshape(Hp, C * b * w)
-    m = banded.banded_mm(ry2, u, py)  # (a h, C b w): (a, h, C, b, w)
+    if row_major:  # free where ry is held as (h, a, Hp), as the encoders cache it
+        m = banded.banded_mm(ry.transpose(0, 1).reshape(h * a, Hp), u, py)  # (h a, C b w)
+        return m.reshape(h, a, C, b, w).permute(2, 1, 3, 0, 4)
+    m = banded.banded_mm(ry.reshape(a * h, Hp), u, py)  # (a h, C b w): (a, h, C, b, w)
     return m.reshape(a, h, C, b, w).permute(2, 0, 3, 1, 4).contiguous()
+
+
+def operator_rows(op: torch.Tensor) -> torch.Tensor | None:
+    """The ``(h, a C b, w)`` canvas-row blocks of a ``(C, a, b, h, w)`` operator held row by row, else None.
+
+    The banded build with sorted rows (:func:`scene_operator`) returns a view of an ``(h, a, C, b, w)``
+    tensor: block ``p`` is the ``(a C b, w)`` matrix taking canvas row ``p`` to the embedding, whose rows
+    are in ``(a, C, b)`` order. None for any other layout (a contiguous operator included).
+    """
+    if op.dim() != 5 or op.is_contiguous():
+        return None
+    rows = op.permute(3, 1, 0, 2, 4)
+    if not rows.is_contiguous():
+        return None
+    h, a, C, b, w = rows.shape
+    return rows.view(h, a * C * b, w)
 
 
 def apply_operator(op: torch.Tensor, scene: torch.Tensor, skip_zeros: bool = True) -> torch.Tensor:
@@ -334,18 +370,59 @@ def apply_operator(op: torch.Tensor, scene: torch.Tensor, skip_zeros: bool = Tru
     canvas) multiply only those rows' part of the operator (exact); False: one dense product.
     """
     C, a, b, h, w = op.shape
-    flat = op.reshape(C, a * b, h * w)
     x = scene.reshape(scene.shape[0], scene.shape[1], h * w)
+    if x.shape[1] not in (1, C):
+        raise ConfigError("scene channels", x.shape[1], f"must be 1 or {C} (the PSF's channels)")
+    sparse = skip_zeros and x.shape[1] == 1 and not x.requires_grad
+    rows = operator_rows(op) if sparse and op.device.type == "cpu" else None
+    out, runs = _row_major_product(scene[:, 0], rows) if rows is not None else (None, None)
+    if out is not None:  # (B, a, C, b)
+        return out.reshape(scene.shape[0], a, C, b).transpose(1, 2).reshape(scene.shape[0], C, a, b)
+    flat = op.reshape(C, a * b, h * w)  # a copy where op is held row by row (the product could not use that)
     # Explicit products with the operator on the right, transposed: their gradient with respect to the
     # operator comes out in the operator's own layout (einsum's transposed it, a copy of the whole operator).
     if x.shape[1] == 1:
-        out = _sparse_scene_product(scene[:, 0], op.reshape(C * a * b, h * w)) if skip_zeros and not x.requires_grad else None
-        out = x[:, 0] @ op.reshape(C * a * b, h * w).T if out is None else out
-    elif x.shape[1] == C:
-        out = torch.bmm(x.transpose(0, 1), flat.transpose(1, 2)).transpose(0, 1)
+        out = _sparse_scene_product(scene[:, 0], flat.reshape(C * a * b, h * w), runs) if sparse else None
+        out = x[:, 0] @ flat.reshape(C * a * b, h * w).T if out is None else out
     else:
-        raise ConfigError("scene channels", x.shape[1], f"must be 1 or {C} (the PSF's channels)")
+        out = torch.bmm(x.transpose(0, 1), flat.transpose(1, 2)).transpose(0, 1)
     return out.reshape(scene.shape[0], C, a, b)
+
+
+# A canvas-row-major operator multiplies all scenes row by row (no run of lit rows to skip to) from this
+# canvas width on: each row's product then has enough columns to run near one large product's rate, and
+# it saves the copy into the (C, a, b, h, w) layout and back (Table 3's 109 x 146 canvas: 145 against
+# 176 ms forward and backward, dense scenes, one AVX2 core); narrower, one product after the copy wins
+# (41 x 40: 16.1 against 14.0 ms; 60 x 100: 54.7 against 52.1 ms).
+_ROW_MAJOR_DENSE_WIDTH = 128
+
+
+def _row_major_product(x: torch.Tensor, rows: torch.Tensor):
+    """``(B, a C b)`` products of ``(B, h, w)`` scenes with an operator's canvas-row blocks ``(h, a C b, w)``.
+
+    Sorted by their first lit row, the scenes lighting any one canvas row are a run of consecutive
+    scenes; each row's block multiplies its run only (:func:`banded.row_runs_mm`; exact, the same terms
+    summed in another order). Where the runs do not skip enough (scenes filling the canvas), all scenes
+    for every row on a wide canvas (``_ROW_MAJOR_DENSE_WIDTH``), else None: the caller copies the operator
+    into one matrix. Returns ``(product or None, the runs found or None)`` (:func:`_lit_row_runs`).
+    """
+    B, h, w = x.shape
+    if rows.shape[1] < _MIN_SPARSE_ROWS and w < _ROW_MAJOR_DENSE_WIDTH:
+        return None, None  # a small operator: the dense product at once, as _sparse_scene_product takes it
+    found = None
+    if B >= 2 and B * h * w * rows.shape[1] >= _MIN_BANDED_MACS:
+        found = order, s0, s1 = _lit_row_runs(x)
+        runs = list(zip(s0.tolist(), s1.tolist()))
+        # One product a canvas row, each with its call overhead (banded._BLOCK_OVERHEAD, forward and
+        # backward): against the dense product's multiply-adds (6x8's operator of 48 rows on a 53 x 50
+        # region: 0.89x without this).
+        work = sum(max(0, e - s) for s, e in runs) * w * rows.shape[1] + h * banded._BLOCK_OVERHEAD
+        if work <= banded._MAX_FRACTION * B * h * w * rows.shape[1]:
+            out = banded.row_runs_mm(rows, x.index_select(0, order), runs)
+            return out.index_select(0, torch.argsort(order)), found
+    if w >= _ROW_MAJOR_DENSE_WIDTH:
+        return banded.row_runs_mm(rows, x, [(0, B)] * h), found
+    return None, found
 
 
 # The scenes' row scan (~0.5 ns a pixel) must be small next to the product it may save (C a b multiply-adds
@@ -355,7 +432,7 @@ _MIN_SPARSE_ROWS = 128
 _SCENE_BLOCK_ROWS = (1, 2, 4, 8)
 
 
-def _sparse_scene_product(x: torch.Tensor, opm: torch.Tensor) -> torch.Tensor | None:
+def _sparse_scene_product(x: torch.Tensor, opm: torch.Tensor, runs=None) -> torch.Tensor | None:
     """``x @ opm.T`` for ``(B, h, w)`` scenes that are zero outside a few rows each, or None if not cheaper.
 
     A digit shifted on Table 3's canvas covers about a fifth of its rows. Sorted by their first lit row,
@@ -364,23 +441,34 @@ def _sparse_scene_product(x: torch.Tensor, opm: torch.Tensor) -> torch.Tensor | 
     same terms summed in another order): the operator and its gradient are read and written once per
     step, in products of tens of scenes. None off a CPU (a GPU runs one large product faster than many
     small ones), where the operator is small, or where the scenes fill too much of the canvas for that to
-    save work.
+    save work. ``runs``: the scenes' :func:`_lit_row_runs`, where already found.
     """
     B, h, w = x.shape
     if B < 2 or x.device.type != "cpu" or opm.shape[0] < _MIN_SPARSE_ROWS or B * h * w * opm.shape[0] < _MIN_BANDED_MACS:
         return None
-    first, last = banded.row_spans(x.abs().amax(-1))  # the lit rows of each scene
-    order = torch.argsort(first, stable=True)
-    rows = torch.arange(h)[:, None]
-    lit = (first[order][None] <= rows) & (last[order][None] > rows)  # (h, B): canvas row r lit by sorted scene s
-    s0, s1 = banded.row_spans(lit)  # the run of sorted scenes lighting each canvas row
+    order, s0, s1 = _lit_row_runs(x) if runs is None else runs
     plan = banded.BandPlan(s0.repeat_interleave(w), s1.repeat_interleave(w), B, opm.shape[0],
                            block_rows=tuple(w * r for r in _SCENE_BLOCK_ROWS))
     if not plan.banded:
         return None
-    order = order.to(x.device)
     out = banded.column_banded_mm(x.reshape(B, h * w).index_select(0, order), opm, plan)
     return out.index_select(0, torch.argsort(order))
+
+
+def _lit_row_runs(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(order, s0, s1)`` of ``(B, h, w)`` scenes: sorted by their first lit row (``order``), the scenes
+    lighting canvas row ``r`` lie in ``[s0[r], s1[r])`` of that order (an unlit row: ``[B, 0)``)."""
+    h = x.shape[1]
+    # (B, h) lit rows: a sum of absolute values is > 0 exactly when a term is (no cancellation; rounding
+    # never takes a sum of positive terms to zero). 5x faster than amax and amin over a short last axis
+    # (200 digits on 53 x 50 pixels: 0.17 against 0.85 ms, one AVX2 core).
+    on = x.abs().sum(-1) > 0
+    first, last = banded.row_spans(on)
+    order = torch.argsort(first, stable=True)
+    r = torch.arange(h)[:, None]
+    lit = (first[order][None] <= r) & (last[order][None] > r)  # (h, B): canvas row r lit by sorted scene s
+    s0, s1 = banded.row_spans(lit)
+    return order.to(x.device), s0, s1
 
 
 def snr_sigma(signal: torch.Tensor, snr_db: float) -> torch.Tensor:

@@ -30,6 +30,13 @@ def band_matrix(m: int, k: int, width: int, slope: float, g: torch.Generator, ze
     return a
 
 
+def _poison_freed_memory(m: int, n: int) -> None:
+    """Free an ``(m, n)`` block of NaNs: the product's uninitialised output reuses it, so a row left unwritten
+    shows (fresh pages would read as zeros and hide it)."""
+    t = torch.full((m, n), float("nan"), dtype=DT)
+    del t
+
+
 def test_plan_blocks_hold_every_nonzero_entry_and_skip_most_zeros(small_is_large):
     g = torch.Generator().manual_seed(0)
     a = band_matrix(300, 120, 5, 0.37, g, zero_rows=(7, 150, 151))
@@ -58,6 +65,8 @@ def test_banded_mm_is_the_dense_product_and_its_gradient(zero_rows, small_is_lar
     b = torch.rand(90, 13, generator=g, dtype=DT, requires_grad=True)
     plan = banded.BandPlan.of(a, 13)
     assert plan.banded and (not zero_rows or not plan.covers_all_rows)  # the all-zero block is left out
+    assert (plan.zero_rows is None) == (not zero_rows)
+    _poison_freed_memory(200, 13)
     out = banded.banded_mm(a, b, plan)
     torch.testing.assert_close(out, a @ b, rtol=1e-12, atol=1e-12)
     assert bool((out[list(zero_rows)] == 0).all())
@@ -93,6 +102,10 @@ def test_sorted_plan_follows_a_band_that_restarts_and_is_the_dense_product(small
     for r0, r1, k0, k1 in srt.blocks:
         covered[srt.order[r0:r1], k0:k1] = True
     assert bool(covered[a != 0].all())
+    held = {int(i) for r0, r1, _, _ in srt.blocks for i in srt.order[r0:r1]}
+    alone = set() if srt.zero_rows is None else set(srt.zero_rows.tolist())
+    assert alone == set(range(a.shape[0])) - held <= {3, 77, 200}  # rows no block writes are zeroed alone
+    _poison_freed_memory(a.shape[0], 9)
     out = banded.banded_mm(a, b, srt)
     torch.testing.assert_close(out, a @ b, rtol=1e-12, atol=1e-12)
     assert bool((out[[3, 77, 200]] == 0).all())
@@ -304,3 +317,88 @@ def test_encoder_region_spans_are_those_of_the_region_tensors():
         for (f, l_), t in (((fy, ly), ry[:, r0:r1]), ((fx, lx), rx[:, c0:c1])):
             ef, el = banded.row_spans(t.reshape(-1, t.shape[-1]))
             assert torch.equal(f, ef) and torch.equal(l_, el)
+
+
+def test_row_runs_mm_is_the_dense_product_and_its_gradient():
+    # Scenes sorted by their first lit row; row p multiplies only its run of scenes (whose others are zero
+    # in row p). Float64, the same terms in another order: 1e-12 (a skipped nonzero row would be ~0.1).
+    g = torch.Generator().manual_seed(8)
+    B, h, r, w = 7, 12, 5, 9
+    xs = torch.zeros(B, h, w, dtype=DT)
+    runs = []
+    for p in range(h):
+        s0, s1 = min(p // 2, B), min(p // 2 + 3, B)
+        runs.append((s0, s1) if p != 5 else (B, 0))  # row 5: lit by no scene
+        if p != 5:
+            xs[s0:s1, p] = torch.rand(s1 - s0, w, generator=g, dtype=DT)
+    m = torch.rand(h, r, w, generator=g, dtype=DT, requires_grad=True)
+    out = banded.row_runs_mm(m, xs, runs)
+    dense = xs.reshape(B, h * w) @ m.permute(1, 0, 2).reshape(r, h * w).T
+    torch.testing.assert_close(out, dense, rtol=1e-12, atol=1e-12)
+    _poison_freed_memory(h * r, w)  # the unlit row's gradient block is zeroed, not left as found
+    assert torch.autograd.gradcheck(lambda v: banded.row_runs_mm(v, xs, runs), (m,))
+    (gm,) = torch.autograd.grad(out.sum(), m)
+    assert bool((gm[5] == 0).all())
+    with pytest.raises(ValueError, match="constant"):
+        banded.row_runs_mm(m, xs.clone().requires_grad_(), runs)
+    with pytest.raises(ValueError, match="do not multiply"):
+        banded.row_runs_mm(m, xs, runs[:-1])
+
+
+def test_regrouped_plan_is_the_same_product_in_the_other_row_order(small_is_large):
+    # Rows (g, i) of a sawtooth band, planned sorted, then taken in the order (i, g): the same blocks must
+    # give the product of the regrouped matrix (float64: 1e-12), zero rows included, for a consecutive plan too.
+    g = torch.Generator().manual_seed(9)
+    a = sawtooth_matrix(12, 20, 150, 6, g)
+    a[[3, 77, 200]] = 0
+    b = torch.rand(150, 9, generator=g, dtype=DT, requires_grad=True)
+    swapped = a.reshape(12, 20, 150).transpose(0, 1).reshape(240, 150)
+    for plan in (banded.BandPlan.of(a, 9, sort_rows=True), banded.BandPlan.of(a, 9)):
+        moved = plan.regrouped(12)
+        assert moved is plan.regrouped(12) and moved.blocks == plan.blocks
+        _poison_freed_memory(240, 9)
+        out = banded.banded_mm(swapped, b, moved)
+        torch.testing.assert_close(out, swapped @ b, rtol=1e-12, atol=1e-12)
+        assert torch.autograd.gradcheck(lambda v: banded.banded_mm(swapped, v, moved), (b,))
+    with pytest.raises(ValueError, match="groups"):
+        plan.regrouped(7)
+
+
+@pytest.mark.parametrize("scenes", ["shifted digits", "dense, wide", "dense, narrow"])
+def test_canvas_row_operator_applies_as_the_contiguous_one(scenes, monkeypatch, small_is_large):
+    # The sorted build returns its operator as a view held canvas row by canvas row; applied to scenes it
+    # must give the contiguous operator's embeddings and the same gradient with respect to the PSF (float64,
+    # same terms, other order: 1e-12), whichever product it takes: the runs of lit rows (digits at random
+    # rows), every scene row by row (a wide canvas: the width threshold lowered to this case's 70 columns),
+    # or the copy into one matrix (narrow).
+    import warnings
+
+    warnings.simplefilter("ignore")  # the canvas overfills the field of view: cropping is part of the map
+    monkeypatch.setattr(im, "_ROW_MAJOR_DENSE_WIDTH", 64 if scenes == "dense, wide" else 10**9)
+    g = torch.Generator().manual_seed(10)
+    ry, rx = _canvas_correlations((96, 128), (60, 70), (8, 10), 90.0)
+    ry = ry.transpose(0, 1).contiguous().transpose(0, 1)  # held (h, a, Hp), as the encoders cache it
+    psf = torch.rand(2, 96, 128, generator=g, dtype=DT, requires_grad=True)
+    x = torch.zeros(6, 1, 60, 70, dtype=DT)
+    if scenes == "shifted digits":
+        for i in range(5):  # the sixth stays dark
+            r, c = (int(v) for v in torch.randint(0, 50, (2,), generator=g))
+            x[i, 0, r : r + 8, c : c + 8] = torch.rand(8, 8, generator=g, dtype=DT)
+    else:
+        x.uniform_(generator=g)
+    calls = []
+    real = banded.row_runs_mm
+    monkeypatch.setattr(banded, "row_runs_mm", lambda m, xs, runs: calls.append(len(xs)) or real(m, xs, runs))
+    op = im.scene_operator(psf, ry, rx)
+    ref = im.scene_operator(psf, ry, rx, row_major=False)
+    assert im.operator_rows(op) is not None and im.operator_rows(ref) is None and ref.is_contiguous()
+    torch.testing.assert_close(op, ref, rtol=0, atol=0)  # the same products, only held differently
+    wgt = torch.randn(6, 2, 8, 10, generator=g, dtype=DT)
+    out, out_ref = im.apply_operator(op, x), im.apply_operator(ref, x)
+    assert bool(calls) == (scenes != "dense, narrow")
+    torch.testing.assert_close(out, out_ref, rtol=1e-12, atol=1e-12)
+    (g1,) = torch.autograd.grad((im.apply_operator(op, x) * wgt).sum(), psf)
+    (g2,) = torch.autograd.grad((out_ref * wgt).sum(), psf)
+    torch.testing.assert_close(g1, g2, rtol=1e-12, atol=1e-12)
+    if scenes == "shifted digits":
+        assert bool((out[5] == 0).all())
