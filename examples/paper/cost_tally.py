@@ -29,6 +29,7 @@ MEASURED = [
     ("phase_mask_cells.csv", "table1", "clock_s"),  # the learned phase mask's 8 cells
     ("sorted_table3_cells.csv", "table3", "clock_s"),  # learned-SLM cells, the build's rows sorted by band
     ("table3_fixed_rerun_cells.csv", "table3", "clock_s"),  # the coded aperture's shift and rescale cells again
+    ("canvas_rows_table3_cells.csv", "table3", "clock_s"),  # learned-SLM cells, the operator held by canvas row
 ]
 _LINE = re.compile(r"^\s*\w+\s+([\d.]+) s \((\w+)\)\s+(\S+)\s*$")
 
