@@ -342,6 +342,9 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         Exact for a piecewise-constant scene: it equals place -> convolve ->
         integrate on the simulation grid (see :mod:`optoenc.encoders.imaging`).
         Built and held in ``self.operator_dtype`` (``fidelity.operator_dtype``).
+        The banded build may return it as a view held canvas row by canvas row
+        (:func:`optoenc.encoders.imaging.scene_operator`, :attr:`row_major_operators`):
+        ``.reshape`` or ``.contiguous()`` copies it where a flat matrix is needed.
 
         Args:
             region: ``(r0, r1, c0, c1)``: only the columns of scene pixels
