@@ -156,18 +156,23 @@ class BandPlan:
         else:
             self.blocks = [(0, m, 0, k)]
             self.macs = self.cost = m * k * n
-        self.covers_all_rows = sum(r1 - r0 for r0, r1, _, _ in self.blocks) == m
         # The rows no block holds (all-zero rows), zeroed alone: zeroing the whole product first cost 5 ms a
         # step on Table 3's 49-MB operator, whose all-zero rows (embedding rows out of a canvas row's reach)
         # are a few percent.
         self.zero_rows = None
-        if not self.covers_all_rows:
+        if sum(r1 - r0 for r0, r1, _, _ in self.blocks) < m:
             held = np.zeros(m, dtype=bool)
             for r0, r1, _, _ in self.blocks:
                 held[r0:r1] = True
             rows = np.flatnonzero(~held) if order is None or not self.banded else order[~held]
             self.zero_rows = torch.from_numpy(np.ascontiguousarray(rows, dtype=np.int64))
         self.tallest = max(r1 - r0 for r0, r1, _, _ in self.blocks)
+        self._regrouped: dict[int, BandPlan] = {}
+
+    @property
+    def covers_all_rows(self) -> bool:
+        """Whether every row lies in some block (no row is zeroed alone)."""
+        return self.zero_rows is None
 
     def regrouped(self, groups: int) -> "BandPlan":
         """This plan for the matrix with its rows ``(g, i)`` (``groups`` x ``m / groups``) in the order ``(i, g)``.
@@ -178,7 +183,7 @@ class BandPlan:
         m = self.shape[0]
         if groups < 1 or m % groups:
             raise ValueError(f"regrouped: {m} rows are not {groups} groups")
-        cache = self.__dict__.setdefault("_regrouped", {})
+        cache = self._regrouped
         if groups not in cache:
             size = m // groups
             old = torch.arange(m)

@@ -335,8 +335,8 @@ def test_row_runs_mm_is_the_dense_product_and_its_gradient():
     out = banded.row_runs_mm(m, xs, runs)
     dense = xs.reshape(B, h * w) @ m.permute(1, 0, 2).reshape(r, h * w).T
     torch.testing.assert_close(out, dense, rtol=1e-12, atol=1e-12)
-    _poison_freed_memory(h * r, w)  # the unlit row's gradient block is zeroed, not left as found
     assert torch.autograd.gradcheck(lambda v: banded.row_runs_mm(v, xs, runs), (m,))
+    _poison_freed_memory(h * r, w)  # the unlit row's gradient block is zeroed, not left as found
     (gm,) = torch.autograd.grad(out.sum(), m)
     assert bool((gm[5] == 0).all())
     with pytest.raises(ValueError, match="constant"):
