@@ -1,14 +1,16 @@
-"""Tables 1 and 3 on the AMD machines: the cells' measured run clocks where they have run, the sweep's
+"""Tables 1 and 3 on one kind of machine: the cells' measured run clocks where they have run, the sweep's
 quiet estimate elsewhere, and the machine time both add up to with two workers; then how many fixed-encoder
 and learned cells are within the issue's per-cell goals (60 s and 10 min).
 
-    python examples/paper/cost_tally.py [--csv OUT.csv]
+    python examples/paper/cost_tally.py [--machine xeon|epyc] [--csv OUT.csv]
 
-Reads docs/results/epyc/: the estimates (``table{1,3}_estimate_2workers_separable.txt``, ``optoenc sweep
-SPEC --dry-run --workers 2``) and the run clocks of the cells measured with the code that trains them now
-(the newest file naming a cell wins; each file's command is in docs/results/README.md). A measured cell
-ran two at once, one thread each, as the tables are run; the estimate times steps on a quiet machine, so
-where both exist their ratio says how far the estimate is from a real sweep.
+``xeon`` (the default) reads docs/results/xeon/: the Intel machines with AMX of 2026-11-25, where every cell
+of both tables ran in one sweep each with the current code (``table{1,3}_cells.csv``, the sweeps' own cell
+tables) and the estimates are ``table{1,3}_estimate_2workers.txt``. ``epyc`` reads docs/results/epyc/: the AMD
+machines of 2026-11-24/25, whose cells were measured over several sittings (the newest file naming a cell
+wins; each file's command is in docs/results/README.md). Estimates come from ``optoenc sweep SPEC --dry-run
+--workers 2``. A measured cell ran two at once, one thread each, as the tables are run; the estimate times
+steps on a quiet machine, so where both exist their ratio says how far the estimate is from a real sweep.
 """
 
 from __future__ import annotations
@@ -18,47 +20,61 @@ import csv
 import re
 from pathlib import Path
 
-EPYC = Path(__file__).resolve().parents[2] / "docs" / "results" / "epyc"
-ESTIMATES = {"table1": "table1_estimate_2workers_separable.txt", "table3": "table3_estimate_2workers_separable.txt"}
+RESULTS = Path(__file__).resolve().parents[2] / "docs" / "results"
+# Per kind of machine: its folder, the estimate file of each table, and the measured clocks as
 # (file, table, clock column), oldest first: a later file's clock replaces an earlier one's for the same cell.
-MEASURED = [
-    ("epoch_loop_cells.csv", "table1", "epoch_loop_clock_s"),  # 40 fixed-encoder cells, the epoch loop
-    ("table3_fixed_cells.csv", "table3", "epyc_epoch_loop_clock_s"),  # 38 fixed-encoder cells
-    ("propagation_cells.csv", "table1", "clock_s"),  # 16 learned-SLM cells, the axis-by-axis PSF
-    ("propagation_table3_cells.csv", "table3", "clock_s"),  # learned-SLM cells, the axis-by-axis PSF
-    ("phase_mask_cells.csv", "table1", "clock_s"),  # the learned phase mask's 8 cells
-    ("sorted_table3_cells.csv", "table3", "clock_s"),  # learned-SLM cells, the build's rows sorted by band
-    ("table3_fixed_rerun_cells.csv", "table3", "clock_s"),  # the coded aperture's shift and rescale cells again
-    ("canvas_rows_table3_cells.csv", "table3", "clock_s"),  # learned-SLM cells, the operator held by canvas row
-]
+MACHINES = {
+    "xeon": {
+        "estimates": {"table1": "table1_estimate_2workers.txt", "table3": "table3_estimate_2workers.txt"},
+        "measured": [
+            ("table1_cells.csv", "table1", "wall_time_s"),  # optoenc sweep examples/paper/table1.yaml
+            ("table3_cells.csv", "table3", "wall_time_s"),  # optoenc sweep examples/paper/table3.yaml
+        ],
+    },
+    "epyc": {
+        "estimates": {"table1": "table1_estimate_2workers_separable.txt",
+                      "table3": "table3_estimate_2workers_separable.txt"},
+        "measured": [
+            ("epoch_loop_cells.csv", "table1", "epoch_loop_clock_s"),  # 40 fixed-encoder cells, the epoch loop
+            ("table3_fixed_cells.csv", "table3", "epyc_epoch_loop_clock_s"),  # 38 fixed-encoder cells
+            ("propagation_cells.csv", "table1", "clock_s"),  # 16 learned-SLM cells, the axis-by-axis PSF
+            ("propagation_table3_cells.csv", "table3", "clock_s"),  # learned-SLM cells, the axis-by-axis PSF
+            ("phase_mask_cells.csv", "table1", "clock_s"),  # the learned phase mask's 8 cells
+            ("sorted_table3_cells.csv", "table3", "clock_s"),  # learned-SLM cells, the build's rows sorted by band
+            ("table3_fixed_rerun_cells.csv", "table3", "clock_s"),  # the coded aperture's shift and rescale cells
+            ("canvas_rows_table3_cells.csv", "table3", "clock_s"),  # learned-SLM cells, the operator by canvas row
+        ],
+    },
+}
 _LINE = re.compile(r"^\s*\w+\s+([\d.]+) s \((\w+)\)\s+(\S+)\s*$")
 
 
-def estimates(table: str) -> dict[str, float]:
+def estimates(machine: str, table: str) -> dict[str, float]:
     out = {}
-    for line in (EPYC / ESTIMATES[table]).read_text().splitlines():
+    for line in (RESULTS / machine / MACHINES[machine]["estimates"][table]).read_text().splitlines():
         m = _LINE.match(line)
         if m:
             out[m.group(3)] = float(m.group(1))
     return out
 
 
-def measured(table: str) -> dict[str, tuple[float, str]]:
+def measured(machine: str, table: str) -> dict[str, tuple[float, str]]:
     out = {}
-    for name, tab, col in MEASURED:
-        if tab != table:
+    for name, tab, col in MACHINES[machine]["measured"]:
+        path = RESULTS / machine / name
+        if tab != table or not path.exists():
             continue
-        with open(EPYC / name, newline="") as f:
+        with open(path, newline="") as f:
             for row in csv.DictReader(f):
-                if row.get(col):
+                if row.get(col) and row.get("state", "finished") == "finished":
                     out[row["cell"]] = (float(row[col]), name)
     return out
 
 
-def tally() -> tuple[list[dict], dict]:
+def tally(machine: str = "xeon") -> tuple[list[dict], dict]:
     rows, totals = [], {}
-    for table in ESTIMATES:
-        est, meas = estimates(table), measured(table)
+    for table, estimate_file in MACHINES[machine]["estimates"].items():
+        est, meas = estimates(machine, table), measured(machine, table)
         unknown = sorted(set(meas) - set(est))
         if unknown:
             raise SystemExit(f"{table}: measured cells the spec does not have: {unknown[:3]}")
@@ -71,7 +87,7 @@ def tally() -> tuple[list[dict], dict]:
                 t["measured_s"] += clock
                 t["their_estimate_s"] += e
             else:
-                clock, src = e, ESTIMATES[table]
+                clock, src = e, estimate_file
                 t["estimated"] += 1
                 t["estimated_s"] += e
             rows.append({"table": table, "cell": cell, "seconds": round(clock, 1), "estimate_s": e,
@@ -104,9 +120,11 @@ def per_cell_goals(rows: list[dict]) -> list[str]:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--machine", choices=sorted(MACHINES), default="xeon",
+                   help="which machines' measurements (docs/results/MACHINE/); default: xeon")
     p.add_argument("--csv", type=Path, help="also write every cell's row here")
     args = p.parse_args()
-    rows, totals = tally()
+    rows, totals = tally(args.machine)
     all_s = 0.0
     for table, t in totals.items():
         s = t["measured_s"] + t["estimated_s"]
