@@ -345,6 +345,38 @@ def test_row_runs_mm_is_the_dense_product_and_its_gradient():
         banded.row_runs_mm(m, xs, runs[:-1])
 
 
+def test_bucketed_runs_cover_their_run_with_few_lengths_and_keep_the_product(monkeypatch):
+    # bfloat16 runs are widened to multiples of 16 (oneDNN compiles a kernel per shape): every widened run
+    # holds its run, stays inside the batch, has a length that is a multiple of 16 or the whole batch; unlit
+    # rows stay empty. Widening adds only scenes that are zero in that row, so the product is the same:
+    # forced on a float64 product, the same terms plus exact zeros (1e-12).
+    B = 40
+    runs = [(0, 1), (3, 20), (30, 40), (39, 40), (0, 40), (B, 0), (5, 5), (25, 38)]
+    wide = banded._bucketed(runs, B, 16)
+    for (s0, s1), (t0, t1) in zip(runs, wide):
+        if s1 <= s0:
+            assert t1 <= t0
+            continue
+        assert 0 <= t0 <= s0 and s1 <= t1 <= B
+        assert (t1 - t0) % 16 == 0 or t1 - t0 == B
+    assert banded._bucketed(runs, B, 1) == runs  # float32: exact runs
+    g = torch.Generator().manual_seed(12)
+    h, r, w = len(runs), 4, 6
+    xs = torch.zeros(B, h, w, dtype=DT)
+    for p, (s0, s1) in enumerate(runs):
+        if s1 > s0:
+            xs[s0:s1, p] = torch.rand(s1 - s0, w, generator=g, dtype=DT)
+    m = torch.rand(h, r, w, generator=g, dtype=DT, requires_grad=True)
+    exact = banded.row_runs_mm(m, xs, runs)
+    (g_exact,) = torch.autograd.grad(exact.sum(), m)
+    monkeypatch.setitem(banded._RUN_QUANTUM, DT, 16)
+    widened = banded.row_runs_mm(m, xs, runs)
+    (g_wide,) = torch.autograd.grad(widened.sum(), m)
+    torch.testing.assert_close(widened, exact, rtol=1e-12, atol=1e-12)
+    torch.testing.assert_close(g_wide, g_exact, rtol=1e-12, atol=1e-12)
+    assert banded._RUN_QUANTUM[torch.bfloat16] > 1  # the dtype whose products compile kernels per shape
+
+
 def test_regrouped_plan_is_the_same_product_in_the_other_row_order(small_is_large):
     # Rows (g, i) of a sawtooth band, planned sorted, then taken in the order (i, g): the same blocks must
     # give the product of the regrouped matrix (float64: 1e-12), zero rows included, for a consecutive plan too.
