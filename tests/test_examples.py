@@ -117,3 +117,22 @@ def test_cost_tally_covers_every_cell_of_tables_1_and_3_once(tmp_path, machine):
     learned = sum(get_registry("encoder").get(c.get("encoder")).learnable
                   for table in ("table1", "table3") for c in sweep.load_spec(EXAMPLES / "paper" / f"{table}.yaml").expand())
     assert learned > 0 and f" of {learned} " in kinds["learned"]
+
+
+@pytest.mark.slow  # two learned-SLM runs: about a minute
+def test_step_profile_times_a_cells_own_training_steps(tmp_path):
+    # The script runs the cell's own configuration for warm + steps batches and times the last ones: a
+    # positive time, and the run (in a temporary directory) leaves nothing in the cell's folder but its config.
+    import runpy
+
+    cell = tmp_path / "cell"
+    cell.mkdir()
+    (cell / "config.yaml").write_text(
+        "encoder: {name: learned_slm}\ndecoder: {name: logistic}\nsensor: {embedding: [3, 4]}\n"
+        "dataset: {train_size: 400, val_size: 100, test_size: 100}\ntrainer: {batch_size: 50}\n")
+    mod = runpy.run_path(str(EXAMPLES / "paper" / "step_profile.py"))
+    s = mod["step_seconds"](cell, steps=3, warm=1)
+    assert 0 < s < 60
+    assert [p.name for p in cell.iterdir()] == ["config.yaml"]
+    with pytest.raises(SystemExit, match="no training batch timed"):  # more warm batches than the data has
+        mod["step_seconds"](cell, steps=3, warm=20)
