@@ -4,8 +4,8 @@ and learned cells are within the issue's per-cell goals (60 s and 10 min).
 
     python examples/paper/cost_tally.py [--machine xeon|epyc] [--csv OUT.csv]
 
-``xeon`` (the default) reads docs/results/xeon/: the Intel machines with AMX of 2026-11-25, where every cell
-of both tables ran in one sweep each with the current code (``table{1,3}_cells.csv``, the sweeps' own cell
+``xeon`` (the default) reads docs/results/xeon/: the Intel machines with AMX of 2026-11-25, where both tables run
+in one sweep each with the current code (resumed over sittings) (``table{1,3}_cells.csv``, the sweeps' own cell
 tables) and the estimates are ``table{1,3}_estimate_2workers.txt``. ``epyc`` reads docs/results/epyc/: the AMD
 machines of 2026-11-24/25, whose cells were measured over several sittings (the newest file naming a cell
 wins; each file's command is in docs/results/README.md). Estimates come from ``optoenc sweep SPEC --dry-run
@@ -21,7 +21,7 @@ import re
 from pathlib import Path
 
 RESULTS = Path(__file__).resolve().parents[2] / "docs" / "results"
-# Per kind of machine: its folder, the estimate file of each table, and the measured clocks as
+# Per kind of machine (its folder: docs/results/<name>/): the estimate file of each table, and the measured clocks as
 # (file, table, clock column), oldest first: a later file's clock replaces an earlier one's for the same cell.
 MACHINES = {
     "xeon": {

@@ -391,7 +391,7 @@ _RUN_QUANTUM = {torch.bfloat16: 16, torch.float16: 16}
 
 
 def _bucketed(runs, batch: int, quantum: int) -> list[tuple[int, int]]:
-    """``runs`` widened to lengths that are multiples of ``quantum`` (or ``batch``), within ``[0, batch)``.
+    """``runs`` widened to lengths that are multiples of ``quantum`` (or ``batch``), within ``[0, batch]``.
 
     Widening only adds scenes whose row is zero in that run's canvas row (allowed: a scene outside a run
     must be zero there, a scene inside may be), so the product is unchanged.
