@@ -59,6 +59,9 @@ def estimates(machine: str, table: str) -> dict[str, float]:
 
 
 def measured(machine: str, table: str) -> dict[str, tuple[float, str]]:
+    """The measured cells of ``table``: ``{cell: (seconds, file)}``. A sweep's own cell table gives the cell's
+    machine clock (``clock_s``: its processes from launch to exit) where the sweep recorded one, else its run
+    clock (``wall_time_s``: training and testing, without the process's start-up and re-simulation)."""
     out = {}
     for name, tab, col in MACHINES[machine]["measured"]:
         path = RESULTS / machine / name
@@ -67,7 +70,7 @@ def measured(machine: str, table: str) -> dict[str, tuple[float, str]]:
         with open(path, newline="") as f:
             for row in csv.DictReader(f):
                 if row.get(col) and row.get("state", "finished") == "finished":
-                    out[row["cell"]] = (float(row[col]), name)
+                    out[row["cell"]] = (float(row.get("clock_s") or row[col]), name)
     return out
 
 

@@ -9,10 +9,13 @@ from typing import Any
 from ..training.rundir import RUN_FILES
 from .spec import PLUGIN_KEYS, Cell, SweepSpec, _flatten
 
-__all__ = ["compose_cell", "cell_dir", "cell_state", "STATUS", "VOLATILE_KEYS", "config_differences"]
+__all__ = ["compose_cell", "cell_dir", "cell_state", "STATUS", "CLOCK", "add_clock", "read_clock", "VOLATILE_KEYS",
+           "config_differences"]
 
 #: The per-cell status file (``state``: running, finished, failed; ``error``; times).
 STATUS = "status.json"
+#: The per-cell machine clock, written by the sweep around each of the cell's processes (see :func:`add_clock`).
+CLOCK = "clock.json"
 #: Settings of the machine or worker, not of the experiment (like a thread count, they change at most
 #: rounding), and where the cell is stored (a sweep directory copied or moved elsewhere, a cell renamed
 #: when the spec grows an axis): they never make a finished cell stale.
@@ -117,6 +120,32 @@ def _alive(pid, host) -> bool:
     except PermissionError:
         return True
     return True
+
+
+def add_clock(path: Path, seconds: float) -> dict:
+    """Add one segment of ``seconds`` to the cell's machine clock (``clock.json``: ``seconds``, ``segments``).
+
+    The sweep times each process it starts for the cell, from launch to exit: the interpreter's start-up,
+    composing the configuration, the run and its re-simulation at ``trainer.verify_preset``, pictures, and
+    segments that were interrupted (their work is redone from the last checkpoint, but the machine spent it).
+    The run's own ``wall_time_s`` counts its training and testing only. Only the sweep that owns the cell
+    writes the file (a cell runs in one process at a time), atomically.
+    """
+    from ..training.rundir import write_json
+
+    old = read_clock(path) or {"seconds": 0.0, "segments": 0}
+    new = {"seconds": round(old["seconds"] + float(seconds), 2), "segments": int(old["segments"]) + 1}
+    write_json(path / CLOCK, new)
+    return new
+
+
+def read_clock(path: Path) -> dict | None:
+    """The cell's machine clock (:func:`add_clock`), or None where the sweep has not recorded one."""
+    try:
+        clock = json.loads((path / CLOCK).read_text())
+        return {"seconds": float(clock["seconds"]), "segments": int(clock["segments"])}
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
 
 
 def cell_state(path: Path, config_yaml: str | None = None) -> str:

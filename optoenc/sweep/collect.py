@@ -15,7 +15,7 @@ from typing import Any
 
 from ..training.callbacks import read_metrics
 from ..training.rundir import RUN_FILES, atomic_write_text
-from .cells import STATUS
+from .cells import STATUS, read_clock
 from .runner import PlannedCell
 from .spec import SweepSpec, _fmt
 
@@ -25,7 +25,7 @@ CELL_COLUMNS = (
     "cell", "state", "encoder", "embedding", "decoder", "transform", "augment_mode", "precision", "variant", "seed",
     "epochs",
     "best_epoch", "val_acc", "test_acc", "best_test_acc", "reference_test_acc", "paper_acc", "wall_time_s",
-    "epoch_time_s", "error",
+    "epoch_time_s", "clock_s", "error",
 )
 SUMMARY_COLUMNS = (
     "encoder", "embedding", "decoder", "transform", "augment_mode", "precision", "variant", "seeds", "test_acc", "test_acc_std",
@@ -79,6 +79,7 @@ def cell_rows(spec: SweepSpec, planned: list[PlannedCell]) -> list[dict[str, Any
         metrics = read_metrics(p.path / RUN_FILES["metrics"])
         times = [float(m["time_s"]) for m in metrics if m.get("time_s")]
         mode = run.trainer.augment_draw if run.augment else ""  # "once" (the paper's protocol) or "epoch"
+        clock = read_clock(p.path)
         rows.append({
             "cell": p.cell.name,
             "state": "finished" if summary else ("failed" if status.get("state") == "failed" else p.state),
@@ -99,6 +100,7 @@ def cell_rows(spec: SweepSpec, planned: list[PlannedCell]) -> list[dict[str, Any
             "paper_acc": spec.paper_figure(p.cell),
             "wall_time_s": summary.get("wall_time_s"),
             "epoch_time_s": round(sum(times) / len(times), 2) if times else None,
+            "clock_s": clock["seconds"] if clock else None,
             "error": status.get("error", "") if status.get("state") == "failed" else "",
         })
     return rows

@@ -21,7 +21,7 @@ from typing import Callable, Iterable
 
 from ..errors import ConfigError
 from ..training.rundir import RUN_FILES, atomic_write_text
-from .cells import cell_dir, cell_state, compose_cell, config_differences
+from .cells import add_clock, cell_dir, cell_state, compose_cell, config_differences
 from .spec import Cell, SweepSpec
 
 __all__ = ["PlannedCell", "plan", "run", "thread_budget", "resolve_threads", "EXECUTORS"]
@@ -123,6 +123,7 @@ def _run_local(p: PlannedCell, threads: int, running: _Running) -> tuple[bool, s
         with running.lock:
             if running.stopping:
                 return False, "not started: the sweep was interrupted"
+            launched = time.monotonic()
             proc = subprocess.Popen(
                 [sys.executable, "-m", "optoenc.sweep.cell", str(p.path), str(threads)],
                 stdout=log, stderr=subprocess.STDOUT, env=env, stdin=subprocess.DEVNULL,
@@ -132,6 +133,7 @@ def _run_local(p: PlannedCell, threads: int, running: _Running) -> tuple[bool, s
         try:
             proc.wait()
         finally:
+            add_clock(p.path, time.monotonic() - launched)
             with running.lock:
                 running.procs.pop(p.cell.name, None)
     return proc.returncode == 0, _error(p)
@@ -208,10 +210,10 @@ def run(
             raise
         pool.shutdown()
         return failures
-    from .cell import run_cell
+    from .cell import run_cell_clocked
 
     ex = _submitit_executor(executor, Path(sweep_dir), threads, slurm)
-    jobs = [(p, ex.submit(run_cell, str(p.path), threads)) for p in todo]
+    jobs = [(p, ex.submit(run_cell_clocked, str(p.path), threads)) for p in todo]
     for p, job in jobs:
         try:
             job.result()

@@ -57,11 +57,21 @@ def test_sweep_isolates_failures_skips_finished_and_collects(tmp_path):
     summary = list(csv.DictReader(open(out / "summary.csv")))
     assert summary[0]["paper_acc"] == "42.8" and summary[0]["seeds"] == "1"
     assert "Failed cells" in (out / "summary.md").read_text()
+    # The machine clock of a cell is its process's, launch to exit: at least the run's own clock (training
+    # and testing) and the span its status records (the process wrote both from inside).
+    status = json.loads((ok / "status.json").read_text())
+    clock = float(by[ok.name]["clock_s"])
+    assert clock >= float(by[ok.name]["wall_time_s"]) and clock >= status["ended"] - status["started"] - 0.01
+    assert by[bad.name]["clock_s"]  # a failed cell's process cost time too
     stamp = (ok / "summary.json").stat().st_mtime_ns
     again = _sweep(str(spec), "--out", str(out))
     assert again.returncode == 1
     assert (ok / "summary.json").stat().st_mtime_ns == stamp  # finished: skipped
     assert "FAILED" in again.stderr and bad.name in again.stderr  # failed: re-run
+    rows = {r["cell"]: r for r in csv.DictReader(open(out / "cells.csv"))}
+    assert float(rows[ok.name]["clock_s"]) == clock  # a skipped cell adds nothing
+    assert float(rows[bad.name]["clock_s"]) > float(by[bad.name]["clock_s"])  # a re-run adds its segment
+    assert json.loads((bad / "clock.json").read_text())["segments"] == 2
     dry = _sweep(str(spec), "--out", str(out), "--dry-run")
     assert dry.returncode == 0 and "finished" in dry.stdout and "failed" in dry.stdout
     # A sweep directory copied elsewhere (as docs/results/README.md resumes from committed cells) keeps its
@@ -117,5 +127,7 @@ def test_a_stopped_sweep_stops_its_running_cell_and_starts_no_more(tmp_path, how
     assert f"interrupted by {sig.name}" in err
     status = json.loads((first / "status.json").read_text())
     assert status["state"] == "interrupted", status  # the cell got the signal, saved, and said so
+    # The stopped segment's machine time is on the cell's clock (resuming redoes part of it).
+    assert json.loads((first / "clock.json").read_text())["segments"] == 1
     for seed in (1, 2):  # never started
         assert not (out / "cells" / f"seed={seed}" / "status.json").is_file()
