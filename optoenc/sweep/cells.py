@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from ..training.rundir import RUN_FILES
+from ..training.rundir import RUN_FILES, write_json
 from .spec import PLUGIN_KEYS, Cell, SweepSpec, _flatten
 
 __all__ = ["compose_cell", "cell_dir", "cell_state", "STATUS", "CLOCK", "add_clock", "read_clock", "VOLATILE_KEYS",
@@ -131,8 +131,6 @@ def add_clock(path: Path, seconds: float) -> dict:
     The run's own ``wall_time_s`` counts its training and testing only. Only the sweep that owns the cell
     writes the file (a cell runs in one process at a time), atomically.
     """
-    from ..training.rundir import write_json
-
     old = read_clock(path) or {"seconds": 0.0, "segments": 0}
     new = {"seconds": round(old["seconds"] + float(seconds), 2), "segments": int(old["segments"]) + 1}
     write_json(path / CLOCK, new)
