@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import functools
 import re
 from pathlib import Path
 
@@ -108,9 +109,34 @@ def tally(machine: str = "xeon") -> tuple[list[dict], dict]:
                 clock, src = e, estimate_file
                 t["estimated"] += 1
                 t["estimated_s"] += e
-            rows.append({"table": table, "cell": cell, "seconds": round(clock, 1), "estimate_s": e,
+            rows.append({"table": table, "cell": _spec_name(cell, table), "seconds": round(clock, 1), "estimate_s": e,
                          "source": src})
     return rows, totals
+
+
+#: What the specs' ``trainer.precision=auto`` adds to a cell's name. The fixed encoders' 24x32 FCNN cells gained it
+#: on 2026-11-25 (session 22); on a CPU without native bfloat16 (the AMD machines) ``auto`` is ``32-true``, so the
+#: float32 cells measured there before, named without it, are the very runs the specs now ask for on them.
+_AUTO = ",precision=auto"
+
+
+def _spec_name(cell: str, table: str) -> str:
+    """``cell`` as the spec now names it: a name from before the fixed cells gained ``precision=auto`` mapped to
+    the spec's cell that differs from it only by that (the AMD machines' files); any other name unchanged."""
+    return cell if cell in _spec_names(table) else _by_plain(table).get(cell, cell)
+
+
+@functools.lru_cache(maxsize=None)
+def _spec_names(table: str) -> frozenset[str]:
+    from optoenc import sweep
+
+    return frozenset(c.name for c in sweep.load_spec(Path(__file__).parent / f"{table}.yaml").expand())
+
+
+@functools.lru_cache(maxsize=None)
+def _by_plain(table: str) -> dict[str, str]:
+    """The spec's cells by their names without ``precision=auto``."""
+    return {name.replace(_AUTO, ""): name for name in _spec_names(table)}
 
 
 # The issue's per-cell goals, seconds: a fixed-encoder cell (cached embeddings) and a learned one.
