@@ -138,6 +138,9 @@ def _parser() -> argparse.ArgumentParser:
     sw.add_argument("--executor", default="local", help="local (processes), submitit-local or slurm (needs submitit)")
     sw.add_argument("--restart-changed", action="store_true", help="move aside cells whose stored config differs, re-run them")
     sw.add_argument("--collect", action="store_true", help="only collect finished cells into the tables and plots")
+    sw.add_argument("--order", default="spec",
+                    help="the order cells start in: spec (the spec's) or longest (the longest first by the --dry-run "
+                         "estimate: with several workers, fewer idle at the end)")
     sw.add_argument("--only", action="append", metavar="GLOB",
                     help="run only the cells whose name matches (repeatable), e.g. 'encoder=learned_slm,*'")
     from .privacy.commands import add_parsers as _privacy_parsers
@@ -378,11 +381,17 @@ def cmd_sweep(args, extra) -> int:
     planned = sweep.plan(spec, out, args.only)
     if args.only and not planned:
         raise ConfigError("--only", ",".join(args.only), "matches no cell (see the names with --dry-run)")
-    if args.dry_run:
+    if args.order not in sweep.ORDERS:
+        raise ConfigError("--order", args.order, f"one of {', '.join(sweep.ORDERS)}")
+    if args.dry_run or (args.order == "longest" and not args.collect):
         from .sweep.estimate import estimate
 
         est = estimate(planned, threads=sweep.resolve_threads(args.workers, args.threads))
-        total = sum(e["seconds"] for p, e in zip(planned, est.values()) if p.state != "finished" and e["seconds"] == e["seconds"])
+        if args.order == "longest":
+            planned = sweep.longest_first(planned, {k: e["seconds"] for k, e in est.items()})
+    if args.dry_run:
+        secs = [est[p.cell.name]["seconds"] for p in planned if p.state != "finished"]
+        total = sum(s for s in secs if s == s)  # NaN: a cell that could not be estimated
         for p in planned:
             e = est[p.cell.name]
             print(f"{p.state:11s} {e['seconds']:8.1f} s ({e['source']})  {p.cell.name}")

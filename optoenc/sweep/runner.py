@@ -65,6 +65,25 @@ def plan(spec: SweepSpec, sweep_dir: str | Path, only: list[str] | None = None) 
     return out
 
 
+#: ``optoenc sweep --order`` values: the spec's order, or the longest cells (by the sweep's estimate) first.
+ORDERS = ("spec", "longest")
+
+
+def longest_first(planned: list[PlannedCell], seconds: dict[str, float]) -> list[PlannedCell]:
+    """``planned`` with the cells that take longest first (``seconds``: cell name -> estimated seconds).
+
+    With several workers the sweep ends when its last cell does: started last, a long cell runs on alone
+    while the other workers idle; started first, the short cells fill the workers' ends (the longest-
+    processing-time rule). Ties and cells without an estimate (missing or NaN: counted as 0) keep the
+    spec's order.
+    """
+    def key(p: PlannedCell) -> float:
+        s = seconds.get(p.cell.name, 0.0)
+        return -s if s == s else 0.0
+
+    return sorted(planned, key=key)
+
+
 def thread_budget(workers: int, cores: int | None = None) -> int:
     """Torch threads per worker: the machine's cores shared evenly (at least one)."""
     if cores is None:
