@@ -50,27 +50,28 @@ def test_an_unknown_order_is_refused_with_the_allowed_values(tmp_path, capsys):
 TWO = """
 name: two
 base:
-  dataset: {train_size: 200, val_size: 100, test_size: 100}
+  dataset: {train_size: 2000, val_size: 100, test_size: 100}
   trainer: {verify_preset: null, eval_batch_size: 100}
   fidelity: {grid: [48, 64]}
   output: {examples: 0}
   encoder: lens
   sensor: {embedding: [6, 8]}
-  decoder: logistic
+  decoder: fcnn
 axes:
-  - trainer.max_epochs: [2, 60]
+  - trainer.max_epochs: [1, 100]
 """
 
 
 def test_the_dry_run_lists_the_cells_in_the_order_they_would_start(tmp_path, capsys):
-    # The same cell at 2 and 60 epochs: the estimate (a timed step, times the steps, plus the encoding both
-    # share) puts the 60-epoch cell first; 30x the epochs, so timing noise between the two cells' measured
-    # steps cannot swap them (at 2 and 7 epochs the shared encoding dominated and noise could).
+    # The same cell at 1 and 100 epochs of 10 FCNN steps: the estimate (a timed step times the steps, plus the
+    # encoding both share, each cell timed on its own) puts the 100-epoch cell first, about 1 s against 0.01 s
+    # of training. The estimates print to 0.1 s: with 1 step an epoch and a logistic decoder both rounded to
+    # 0.0 and the two cells' separately timed encodings decided the order.
     spec = tmp_path / "two.yaml"
     spec.write_text(TWO)
     assert main(["sweep", str(spec), "--out", str(tmp_path / "o"), "--dry-run", "--order", "longest"]) == 0
     lines = [line for line in capsys.readouterr().out.splitlines() if "max_epochs=" in line]
-    assert [line.split()[-1] for line in lines] == ["max_epochs=60", "max_epochs=2"]
+    assert [line.split()[-1] for line in lines] == ["max_epochs=100", "max_epochs=1"]
     assert main(["sweep", str(spec), "--out", str(tmp_path / "o"), "--dry-run"]) == 0
     lines = [line for line in capsys.readouterr().out.splitlines() if "max_epochs=" in line]
-    assert [line.split()[-1] for line in lines] == ["max_epochs=2", "max_epochs=60"]  # the spec's order
+    assert [line.split()[-1] for line in lines] == ["max_epochs=1", "max_epochs=100"]  # the spec's order
