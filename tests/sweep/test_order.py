@@ -63,10 +63,10 @@ axes:
 
 
 def test_the_dry_run_lists_the_cells_in_the_order_they_would_start(tmp_path, capsys):
-    # The same cell at 1 and 100 epochs of 10 FCNN steps: the estimate (a timed step times the steps, plus the
-    # encoding both share, each cell timed on its own) puts the 100-epoch cell first, about 1 s against 0.01 s
-    # of training. The estimates print to 0.1 s: with 1 step an epoch and a logistic decoder both rounded to
-    # 0.0 and the two cells' separately timed encodings decided the order.
+    # The same cell at 1 and 100 epochs of 10 FCNN steps: the estimate (one timed step of this kind of cell,
+    # times each cell's steps, plus the encoding both share) puts the 100-epoch cell first, about 1.3 s against
+    # 0.0 s. Estimates are rounded to 0.1 s: at 1 step an epoch with a logistic decoder both came to 0.0 s, a
+    # tie, and the spec's order stood.
     spec = tmp_path / "two.yaml"
     spec.write_text(TWO)
     assert main(["sweep", str(spec), "--out", str(tmp_path / "o"), "--dry-run", "--order", "longest"]) == 0
