@@ -26,6 +26,26 @@ def test_batch_count_is_the_per_batch_loaders_length(n, batch_size):
     assert batch_count(n, batch_size) == len(loader) == len(list(loader))
 
 
+@pytest.mark.parametrize("n", [401, 450])
+def test_the_whole_epoch_batch_gathers_the_per_batch_loaders_batches(n):
+    # The epoch loop's one batch is the tensors whole plus the epoch's order; gathering its mini-batches by
+    # that order must give exactly the per-batch loader's batches, epoch after epoch (the same permutation).
+    x, y, u = torch.randn(n, 3), torch.arange(n), torch.rand(n, 2)
+    per_batch = make_loader(x, y, 200, shuffle=True, seed=3, extra=(u,))
+    whole = make_loader(x, y, 200, shuffle=True, seed=3, extra=(u,), whole_epoch=True)
+    for epoch in (0, 1):
+        for loader in (per_batch, whole):
+            loader.sampler.set_epoch(epoch)  # as Lightning does before every epoch
+        (batch,) = list(whole)
+        assert batch[0] is x and batch[1] is y and batch[2] is u  # whole and unpermuted: no copy an epoch
+        order = batch[-1]
+        expected = list(per_batch)
+        assert batch_count(len(order), 200) == len(expected)
+        for b, (xb, yb, ub) in enumerate(expected):
+            idx = order[b * 200 : (b + 1) * 200]
+            assert torch.equal(x[idx], xb) and torch.equal(y[idx], yb) and torch.equal(u[idx], ub)
+
+
 def test_batch_count_applies_lightnings_limit():
     # Lightning's limit_train_batches: a fraction (floored, at least one batch) or a number of batches.
     assert batch_count(1000, 100, 0.25) == 2 and batch_count(1000, 100, 0.01) == 1

@@ -72,7 +72,8 @@ def batch_count(n: int, batch_size: int, limit: int | float = 1.0) -> int:
 def train_epoch(module, batch, batch_size: int, limit: int | float = 1.0) -> dict:
     """Train ``module`` (an :class:`~optoenc.training.module.EncoderClassifier`) on one shuffled epoch.
 
-    ``batch`` is the epoch's ``(embeddings, labels)`` in the sampler's order. Logs
+    ``batch`` is ``(embeddings, labels, ..., order)``: the split's tensors whole and the sampler's order
+    (:class:`~optoenc.training.loaders.EpochOrder`); each mini-batch is gathered in turn. Logs
     ``train_loss_epoch`` and ``train_acc`` as the per-batch loop does at its last batch (the
     per-step ``train_loss_step`` is not logged). Returns ``{"loss": mean loss}``, or at the
     first non-finite loss ``{"loss": that loss, "batch_idx": its batch}`` (the run's
@@ -80,14 +81,15 @@ def train_epoch(module, batch, batch_size: int, limit: int | float = 1.0) -> dic
     """
     from .module import SEED_STRIDE, _reseed
 
-    x, y = batch[0], batch[1]
+    x, y, order = batch[0], batch[1], batch[-1]
     opt = module.optimizers()
     opt = getattr(opt, "optimizer", opt)  # the torch optimiser itself: no per-step Lightning hooks
     base = module.seed + SEED_STRIDE * (module.current_epoch + 1)
     total, count, count_steps = 0.0, 0, 0
-    for b in range(batch_count(len(y), batch_size, limit)):
+    for b in range(batch_count(len(order), batch_size, limit)):
         _reseed(base + 7 * b)  # the per-batch loop's on_train_batch_start
-        xb, yb = x[b * batch_size : (b + 1) * batch_size], y[b * batch_size : (b + 1) * batch_size]
+        idx = order[b * batch_size : (b + 1) * batch_size]
+        xb, yb = x[idx], y[idx]
         logits = module.decoder(module.embed(xb, augment=True))
         loss = F.cross_entropy(logits, yb)
         if not math.isfinite(loss.item()):

@@ -167,10 +167,10 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
     if run.trainer.batch_size % world:
         raise ConfigError("trainer.batch_size", run.trainer.batch_size,
                           f"must divide evenly over the {world} training processes (devices x num_nodes)")
-    # The epoch loop's one batch an epoch: every example, in the per-batch loader's order.
-    train_bs = len(data["train"][1]) if loop == "epoch" else bs // world
+    # The epoch loop's one batch an epoch: every example and the per-batch loader's order (EpochOrder).
     loaders = {
-        "train": make_loader(*data["train"][:2], train_bs, shuffle=True, seed=run.seed, extra=data["train"][2:], batched=one),
+        "train": make_loader(*data["train"][:2], bs // world, shuffle=True, seed=run.seed, extra=data["train"][2:],
+                             batched=one, whole_epoch=loop == "epoch"),
         "val": make_loader(*data["val"][:2], ebs, shuffle=False, extra=data["val"][2:], batched=one),
         "test": make_loader(*data["test"][:2], ebs, shuffle=False, extra=data["test"][2:], batched=one),
     }
