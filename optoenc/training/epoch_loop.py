@@ -3,11 +3,11 @@
 A fixed encoder's run trains a small decoder on embeddings encoded once. Its step is a few
 milliseconds of arithmetic, and Lightning's per-step machinery (the batch loop, hooks, the
 closure, logging) costs as much again. With ``trainer.loop = 'epoch'`` Lightning is handed
-the whole shuffled epoch as one batch and :func:`train_epoch` steps through its mini-batches:
-the same batches in the same order, the same per-batch seeds (so the same noise), the same
-updates (plain backward, then the optimiser's step) as the per-batch loop, without the
-per-step hooks. Validation, testing, checkpoints (at epoch ends, as before), logging and
-resuming stay Lightning's.
+the whole epoch as one batch (every example and the shuffled order) and :func:`train_epoch`
+steps through its mini-batches: the same batches in the same order, the same per-batch seeds
+(so the same noise), the same updates (plain backward, then the optimiser's step) as the
+per-batch loop, without the per-step hooks. Validation, testing, checkpoints (at epoch ends,
+as before), logging and resuming stay Lightning's.
 """
 
 from __future__ import annotations
