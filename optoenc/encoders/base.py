@@ -168,6 +168,9 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         #: ``(state key, PSF, token of its hook or None)``
         self._psf_cache: tuple[Any, torch.Tensor, object | None] | None = None
         self._op_cache: dict[Any, Any] = {}
+        # Empty, not saved: follows ``.to(device)`` also where an encoder has no parameters or buffers (a fixed PSF),
+        # so that :attr:`device` and the caches' keys know where the module is.
+        self.register_buffer("_device_anchor", torch.zeros(0), persistent=False)
 
     # ----------------------------------------------------------------- to implement
     @abc.abstractmethod
@@ -257,8 +260,14 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         return (self.channels, *self.geometry.embedding)
 
     # ----------------------------------------------------------------- PSF
+    @property
+    def device(self) -> torch.device:
+        """Where the module is (``.to(device)`` moves it): its PSF and operators are built and returned there."""
+        return self._device_anchor.device
+
     def _state_key(self) -> tuple:
-        return (torch.is_grad_enabled() and self.training,) + tuple(
+        # The device: an empty buffer's data_ptr is 0 wherever it lives, and a fixed encoder may hold no other.
+        return (torch.is_grad_enabled() and self.training, str(self.device)) + tuple(
             (p._version, p.data_ptr()) for p in self.parameters()
         ) + tuple((b._version, b.data_ptr()) for b in self.buffers())
 
@@ -281,7 +290,7 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         key = self._state_key()
         if self._psf_cache is not None and self._psf_cache[0] == key:
             return self._psf_cache[1]
-        raw = self.compute_psf()
+        raw = self.compute_psf().to(self.device)  # a no-op where compute_psf built it on the parameters' device
         if raw.dim() != 3 or raw.shape[0] not in (1, 3) or tuple(raw.shape[1:]) != self.geometry.grid:
             raise RuntimeError(
                 f"{type(self).__name__}.compute_psf returned shape {tuple(raw.shape)}; "
