@@ -20,7 +20,7 @@ import functools
 import warnings
 from pathlib import Path
 
-__all__ = ["cpu_flags", "native_bfloat16", "operator_dtype", "trainer_precision", "SlowPrecisionWarning"]
+__all__ = ["cpu_flags", "cpu_model", "describe", "native_bfloat16", "operator_dtype", "trainer_precision", "SlowPrecisionWarning"]
 
 #: CPU feature flags (Linux ``/proc/cpuinfo``) of native bfloat16 matrix products.
 BF16_CPU_FLAGS = frozenset({"amx_bf16", "avx512_bf16"})
@@ -41,6 +41,41 @@ def cpu_flags() -> frozenset[str]:
     except OSError:
         pass
     return frozenset()
+
+
+@functools.lru_cache(maxsize=1)
+def cpu_model() -> str:
+    """This CPU's model name from ``/proc/cpuinfo`` (else :func:`platform.processor`, else ``"unknown"``)."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    import platform
+
+    return platform.processor() or "unknown"
+
+
+def describe(device) -> dict[str, object]:
+    """Where a run ran, for its ``summary.json``: results differ between devices (other kernels, other random
+    streams from the same seed), so a run says which it had.
+
+    ``device`` (a :class:`torch.device` or its name): the training process's device. Returns ``device`` (its
+    type), ``name`` (the GPU's or the CPU's model), ``threads`` (torch's intra-op threads), ``torch`` (its
+    version) and ``native_bfloat16`` (:func:`native_bfloat16` of that device).
+    """
+    import torch
+
+    device = torch.device(device)
+    cuda = device.type == "cuda"
+    return {
+        "device": device.type,
+        "name": torch.cuda.get_device_name(device) if cuda else cpu_model() if device.type == "cpu" else device.type,
+        "threads": torch.get_num_threads(),
+        "torch": torch.__version__,
+        "native_bfloat16": native_bfloat16("cuda" if cuda else device.type),
+    }
 
 
 def _cuda_used(accelerator: str) -> bool:

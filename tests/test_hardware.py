@@ -76,3 +76,12 @@ def test_run_config_accepts_auto_and_the_collected_precision_is_the_one_that_ran
     assert precision(run, {"fidelity": {"dtype": "float32", "operator_dtype": "same"}, "precision": "32-true"}) == "float32/32-true"
     # ... and the configuration's where a cell has not run yet.
     assert precision(run) == "auto/auto"
+
+
+def test_a_run_records_where_it_ran(cpu):
+    """``describe`` (``summary.json``'s ``hardware``): the device, its model, torch's threads and whether it
+    multiplies bfloat16 natively, the flag following the CPU's (simulated) features."""
+    hw = hardware.describe(torch.device("cpu"))
+    assert hw["device"] == "cpu" and hw["name"] == hardware.cpu_model() and hw["name"]
+    assert hw["threads"] == torch.get_num_threads() and hw["torch"] == torch.__version__
+    assert hw["native_bfloat16"] is cpu

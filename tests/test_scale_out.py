@@ -106,3 +106,4 @@ def test_ddp_on_two_cpu_processes_matches_one_process(tmp_path):
     print(f"ddp test_acc: one process {one['test_acc']:.4f}, two processes {two['test_acc']:.4f}")
     assert abs(one["test_acc"] - two["test_acc"]) < 0.03, (one["test_acc"], two["test_acc"])
     assert two["val_acc"] == two["val_acc"]
+    assert (one["hardware"]["processes"], two["hardware"]["processes"]) == (1, 2)  # the summary says how it ran

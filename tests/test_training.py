@@ -8,6 +8,7 @@ import lightning as L
 import time
 
 import pytest
+import torch
 import yaml
 
 from optoenc.training.callbacks import read_metrics
@@ -32,6 +33,8 @@ def test_fit_writes_a_complete_run_directory(tmp_path, quick_args, capsys):
     summary = json.loads((run / "summary.json").read_text())
     assert 0 <= summary["val_acc"] <= 1 and 0 <= summary["test_acc"] <= 1
     assert summary["encoder"]["d2"] == 0.004 and summary["wall_time_s"] > 0
+    hw = summary["hardware"]  # where it ran: quick_args train on the CPU, in one process
+    assert hw["device"] == "cpu" and hw["processes"] == 1 and hw["torch"] == torch.__version__ and hw["name"]
     assert len(read_metrics(run / "metrics.csv")) == 1
     for pic in ("psf_final.png", "measurements.png", "curves.png"):  # fixed encoder: no separate initial PSF
         assert (run / "pictures" / pic).read_bytes()[:4] == b"\x89PNG"

@@ -325,6 +325,8 @@ def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> di
         "sensor": to_dict(run.sensor),
         "precomputed_embeddings": parts.precomputed,
         "loop": parts.loop,  # trainer.loop resolved
+        # where it ran (rank 0's device; processes: Lightning's world size)
+        "hardware": {**hardware.describe(trainer.strategy.root_device), "processes": trainer.world_size},
     }
     if getattr(run, "fidelity_auto", None):
         summary["fidelity_auto"] = run.fidelity_auto
