@@ -31,30 +31,29 @@ class SlowPrecisionWarning(UserWarning):
     """bfloat16 asked for explicitly on hardware that emulates it (slower than float32)."""
 
 
+def _cpuinfo(field: str) -> str | None:
+    """The first ``field : value`` of ``/proc/cpuinfo`` (None where there is no such file or field)."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith(field):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return None
+
+
 @functools.lru_cache(maxsize=1)
 def cpu_flags() -> frozenset[str]:
     """This CPU's feature flags from ``/proc/cpuinfo`` (empty where there is none)."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("flags"):
-                return frozenset(line.split(":", 1)[1].split())
-    except OSError:
-        pass
-    return frozenset()
+    return frozenset((_cpuinfo("flags") or "").split())
 
 
 @functools.lru_cache(maxsize=1)
 def cpu_model() -> str:
     """This CPU's model name from ``/proc/cpuinfo`` (else :func:`platform.processor`, else ``"unknown"``)."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
     import platform
 
-    return platform.processor() or "unknown"
+    return _cpuinfo("model name") or platform.processor() or "unknown"
 
 
 def describe(device) -> dict[str, object]:
