@@ -67,13 +67,13 @@ def describe(device) -> dict[str, object]:
     import torch
 
     device = torch.device(device)
-    cuda = device.type == "cuda"
+    names = {"cuda": lambda: torch.cuda.get_device_name(device), "cpu": cpu_model}
     return {
         "device": device.type,
-        "name": torch.cuda.get_device_name(device) if cuda else cpu_model() if device.type == "cpu" else device.type,
+        "name": names.get(device.type, lambda: device.type)(),
         "threads": torch.get_num_threads(),
         "torch": torch.__version__,
-        "native_bfloat16": native_bfloat16("cuda" if cuda else device.type),
+        "native_bfloat16": native_bfloat16(device.type),  # an accelerator name: 'cuda', 'cpu', 'mps'
     }
 
 

@@ -183,14 +183,14 @@ class Lens(OpticalEncoder):
         H, W = self.geometry.grid
         if self.config.psf_path is not None:
             psf = psf_files.measured_psf(self.config.psf_path, self.config.background, (H, W))
-            return psf.to(self.device, self.optics_dtype)
+            return psf.to(self.optics_dtype)
         n_w = self.d2 / self.aperture_diameter
         blur = self.blur_diameter
         out = torch.zeros(3, H, W, dtype=torch.float64)
         for c, lam in enumerate(devices.WAVELENGTHS_RGB):
             win = airy_pixel_psf(lam, n_w, self.geometry.spacing, blur)
             out[c] = torch.from_numpy(_with_tail(win, (H, W), self.geometry.spacing, lam * n_w))
-        return out.to(self.device, self.optics_dtype)
+        return out.to(self.optics_dtype)
 
     def cache_token(self) -> str:
         """What, beyond the config, determines this encoder's PSF: a measured file's contents, if any."""

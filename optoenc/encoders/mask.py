@@ -13,7 +13,6 @@ with :meth:`MaskEncoder.phase`; see docs/plugin-authoring.md.
 
 from __future__ import annotations
 
-import itertools
 import math
 
 import torch
@@ -104,13 +103,10 @@ class MaskEncoder(OpticalEncoder):
         """``(y, x)``: positions of the field samples from the optical axis, metres (1-D, ``self.optics_dtype``).
 
         ``y[i] = (i - H // 2) * dy`` for ``(H, W) = self.field_grid`` and
-        ``(dy, dx) = self.field_spacing``, on the device of the encoder's
-        parameters and buffers (CPU if it has none).
+        ``(dy, dx) = self.field_spacing``, on the encoder's :attr:`device`.
         """
-        first = next(itertools.chain(self.parameters(), self.buffers()), None)
-        device = first.device if first is not None else None
         return tuple(
-            (torch.arange(n, dtype=self.optics_dtype, device=device) - n // 2) * d
+            (torch.arange(n, dtype=self.optics_dtype, device=self.device) - n // 2) * d
             for n, d in zip(self.field_grid, self.field_spacing)
         )
 
