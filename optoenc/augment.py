@@ -130,21 +130,26 @@ class ObjectState:
         return cls(center.clone(), box, h)
 
 
-def _resample_axis(img: torch.Tensor, dim: int, start: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
+def _resample_axis(img: torch.Tensor, dim: int, start: torch.Tensor, scale: torch.Tensor,
+                   cells: tuple[int, int] | None = None) -> torch.Tensor:
     """Exact area resampling along ``dim`` (-2 or -1) of ``(B, C, H, W)`` images: input cell ``p`` maps to
     ``[start + scale p, start + scale (p + 1))`` (output-cell units; ``start``, ``scale`` of shape ``(B,)``).
 
     Uses the cumulative integral ``F`` of the piecewise-constant input, which
     is exactly linear between cell edges: ``out[y] = scale (F(x1) - F(x0))``.
+    ``cells = (lo, hi)``: only output cells ``lo .. hi - 1`` (the same values). Images expanded along
+    the batch (one placement for every example) are integrated once.
     """
     x = img.transpose(-1, -2) if dim == -1 else img
     B, C, n, m = x.shape
-    F = torch.nn.functional.pad(x.cumsum(2), (0, 0, 1, 0))[:, :, :n]  # F at the left edge of each cell
-    y = torch.arange(n + 1, device=img.device, dtype=torch.float64)
+    lo, hi = (0, n) if cells is None else cells
+    once = x[:1] if B > 1 and x.stride(0) == 0 else x  # the same rows for every example: one cumulative sum
+    F = torch.nn.functional.pad(once.cumsum(2), (0, 0, 1, 0))[:, :, :n].expand(B, C, n, m)  # F at each cell's left edge
+    y = torch.arange(lo, hi + 1, device=img.device, dtype=torch.float64)
     pos = ((y[None] - start[:, None]) / scale[:, None]).clamp(0, n)  # input coordinate of each output edge
     i = pos.floor().clamp(max=n - 1)
     t = (pos - i).to(img.dtype)[:, None, :, None]
-    idx = i.long()[:, None, :, None].expand(B, C, n + 1, m)
+    idx = i.long()[:, None, :, None].expand(B, C, hi - lo + 1, m)
     Fi = torch.gather(F, 2, idx) + t * torch.gather(x, 2, idx)  # exactly constant across empty cells
     out = (Fi[:, :, 1:] - Fi[:, :, :-1]) * scale.to(img.dtype)[:, None, None, None]
     out = out.clamp_min(0)
@@ -288,22 +293,40 @@ class Compose(nn.Module):
         canvas. The whole canvas where a transform may reach anywhere.
         """
         B = scenes.shape[0]
-        state = ObjectState.initial(geometry, B, object_height, scenes.device)
         u = self._draws(B, scenes.device, u)
         p, q = (m.expand(B, 1, -1, -1) for m in _placement(scenes, geometry))
-        i = k = 0
-        for aug in self.augmentations:
-            if not isinstance(aug, SeparableAugmentation):
-                break
-            ((t0, s0), (t1, s1)), state = aug.resampling(geometry, state, u[:, k : k + aug.n_random])
-            p, q = _resample_axis(p, -2, t0, s0), _resample_axis(q, -2, t1, s1)
-            i, k = i + 1, k + aug.n_random
+        resamplings, state, k = self._separable(geometry, ObjectState.initial(geometry, B, object_height, scenes.device), u)
+        i = len(resamplings)
         (r0, r1), (c0, c1) = self._window(geometry, state, list(self.augmentations)[i:])
-        py = p[:, 0, r0:r1].to(scenes.dtype)[:, None]
-        qx = q[:, 0, c0:c1].to(scenes.dtype).transpose(-1, -2)[:, None]
+        for j, ((t0, s0), (t1, s1)) in enumerate(resamplings):  # the last only over the window's rows and columns
+            last = j == i - 1
+            p = _resample_axis(p, -2, t0, s0, (r0, r1) if last else None)
+            q = _resample_axis(q, -2, t1, s1, (c0, c1) if last else None)
+        if not i:
+            p, q = p[:, :, r0:r1], q[:, :, c0:c1]
+        py = p[:, 0].to(scenes.dtype)[:, None]
+        qx = q[:, 0].to(scenes.dtype).transpose(-1, -2)[:, None]
         corner = torch.tensor([r0, c0], dtype=state.center.dtype, device=state.center.device)
         local = ObjectState(state.center - corner, state.box, state.height)
         return self._apply(py @ scenes @ qx, geometry, local, u, i, k), (r0, c0)
+
+    def placed_state(self, geometry: CanvasGeometry, object_height: Any, u: torch.Tensor) -> ObjectState:
+        """Where the leading shifts and rescales put each object (draws ``u`` ``(B, n_random)``): the
+        centres the other transforms turn and warp about, and the boxes. Cheap: no pixels are touched."""
+        u = self._draws(len(u), u.device, u)
+        return self._separable(geometry, ObjectState.initial(geometry, len(u), object_height, u.device), u)[1]
+
+    def _separable(self, geometry: CanvasGeometry, state: ObjectState, u: torch.Tensor):
+        """``(resamplings, state, k)``: the leading separable transforms' resamplings in order, the object
+        state they leave and how many of ``u``'s columns they used."""
+        resamplings, k = [], 0
+        for aug in self.augmentations:
+            if not isinstance(aug, SeparableAugmentation):
+                break
+            resampling, state = aug.resampling(geometry, state, u[:, k : k + aug.n_random])
+            resamplings.append(resampling)
+            k += aug.n_random
+        return resamplings, state, k
 
     @staticmethod
     def _window(geometry: CanvasGeometry, state: ObjectState, rest) -> tuple[tuple[int, int], tuple[int, int]]:

@@ -252,3 +252,20 @@ def test_place_window_is_the_whole_canvas_where_a_transform_reaches_anywhere():
     comp = Compose([Shift(), Perspective({"about": "field"})])
     window, corner = comp.place_window(_digits(2), GEOM, 0.12, torch.rand(2, comp.n_random, dtype=torch.float64))
     assert tuple(window.shape[-2:]) == tuple(GEOM.shape) and corner == (0, 0)
+
+
+@pytest.mark.parametrize("expanded", [False, True])
+def test_resampling_a_range_of_cells_gives_exactly_those_cells(expanded):
+    # place_window resamples the placement matrices only over the window's rows and columns, and integrates
+    # a placement shared by every example once: the cells it keeps must be the whole resampling's, bit for bit.
+    from optoenc.augment import _resample_axis
+
+    g = torch.Generator().manual_seed(2)
+    img = torch.rand(1 if expanded else 5, 1, 40, 7, generator=g, dtype=torch.float64)
+    img = img.expand(5, -1, -1, -1) if expanded else img
+    start, scale = torch.rand(5, generator=g, dtype=torch.float64) * 9 - 3, 0.5 + torch.rand(5, generator=g, dtype=torch.float64)
+    whole = _resample_axis(img, -2, start, scale)
+    dense = _resample_axis(img.contiguous(), -2, start, scale)
+    assert torch.equal(whole, dense)
+    for lo, hi in [(0, 40), (3, 17), (39, 40)]:
+        assert torch.equal(_resample_axis(img, -2, start, scale, (lo, hi)), whole[:, :, lo:hi])

@@ -60,6 +60,9 @@ def test_batch_count_applies_lightnings_limit():
         ("diffuser", "logistic", ["dataset.train_size=401"]),  # a last batch of one: dropped
         ("lens", "fcnn", ["dataset.train_size=1000", "trainer.limit_train_batches=3"]),
         ("lens", "logistic", ["dataset.train_size=1000", "trainer.limit_train_batches=0.5"]),
+        # bfloat16 products (Lightning's autocast around the whole epoch): each mini-batch must multiply by the
+        # weights as they are after the previous step, not by the bfloat16 copies autocast cached at the first.
+        ("lens", "fcnn", ["dataset.train_size=1000", "trainer.precision=bf16-mixed"]),
     ],
 )
 def test_the_epoch_loop_trains_exactly_as_the_batch_loop(tmp_path, encoder, decoder, extra):
@@ -110,3 +113,20 @@ def test_cli_refuses_the_epoch_loop_for_a_learned_encoder_with_one_line(tmp_path
     assert code == 2 and len(lines) == 2 and lines[0].startswith("run directory: "), lines
     assert lines[1].startswith("optoenc: error:") and "trainer.loop = 'epoch'" in lines[1] and "'batch'" in lines[1]
     assert not any(p.is_file() for p in tmp_path.rglob("*"))  # refused before anything is written
+
+
+@pytest.mark.parametrize("shape", [(1, 3, 4), (1, 24, 32), (3, 6, 8)])
+def test_the_noise_level_computed_once_is_the_per_batch_one_bit_for_bit(shape):
+    # The epoch loop computes each example's noise level once for the whole split and reuses it every epoch;
+    # the per-batch loop computes it batch by batch. Each example's variance is its own reduction, so the
+    # numbers must be identical, and so the noisy embeddings drawn with the same seed.
+    from optoenc.encoders.imaging import add_noise, snr_sigma
+
+    g = torch.Generator().manual_seed(1)
+    x = torch.rand(1000, *shape, generator=g) ** 3
+    whole = snr_sigma(x, 40.0)
+    idx = torch.randperm(1000, generator=g)[:200]
+    assert torch.equal(whole.index_select(0, idx), snr_sigma(x[idx], 40.0))
+    a = add_noise(x[idx], 40.0, generator=torch.Generator().manual_seed(7))
+    b = add_noise(x[idx], 40.0, generator=torch.Generator().manual_seed(7), sigma=whole.index_select(0, idx))
+    assert torch.equal(a, b) and not torch.equal(a, x[idx])

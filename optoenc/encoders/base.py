@@ -523,13 +523,29 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
             raise ConfigError("method", method, "one of 'auto', 'operator', 'direct'")
         return out
 
-    def add_sensor_noise(self, clean: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
-        """Sensor noise (zero-mean, after integration) and optional ADC quantisation."""
+    def add_sensor_noise(self, clean: torch.Tensor, generator: torch.Generator | None = None,
+                         sigma: torch.Tensor | None = None) -> torch.Tensor:
+        """Sensor noise (zero-mean, after integration) and optional ADC quantisation.
+
+        ``sigma``: the Gaussian noise's per-example standard deviation where the caller has it
+        (:meth:`noise_sigma` of the same clean embeddings; see :func:`~optoenc.encoders.imaging.add_noise`).
+        """
         s = self.sensor
-        out = imaging.add_noise(clean, s.snr_db, s.noise, s.photons, s.read_noise, generator)
+        out = imaging.add_noise(clean, s.snr_db, s.noise, s.photons, s.read_noise, generator, sigma)
         if s.adc_bits is not None:
             out = imaging.quantize(out, s.adc_bits)
         return out
+
+    def noise_sigma(self, clean: torch.Tensor) -> torch.Tensor | None:
+        """The per-example standard deviation :meth:`add_sensor_noise` gives ``clean`` (None: not Gaussian noise).
+
+        Row for row the same numbers as computed batch by batch (each example's variance is its own
+        reduction): a fixed encoder's embeddings can have theirs computed once, not every epoch.
+        """
+        s = self.sensor
+        if s.noise != "gaussian" or s.snr_db is None:
+            return None
+        return imaging.snr_sigma(clean.detach(), s.snr_db)
 
     def forward(self, scene: torch.Tensor, height: float | None = None, noise: bool = True) -> torch.Tensor:
         """Sensor embedding of ``(B, C, h, w)`` scenes, noise included unless ``noise=False``."""

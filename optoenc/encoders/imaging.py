@@ -491,6 +491,7 @@ def add_noise(
     photons: float = 1e4,
     read_noise: float = 0.0,
     generator: torch.Generator | None = None,
+    sigma: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Zero-mean sensor noise, added after pixel integration.
 
@@ -504,12 +505,15 @@ def add_noise(
             ``read_noise`` photo-electrons, rescaled back to signal units) or
             ``"none"``.
         generator: optional RNG for reproducible draws.
+        sigma: the ``gaussian`` model's per-example standard deviation, ``snr_sigma(signal, snr_db)``, where
+            the caller already has it (a fixed encoder's embeddings are the same every epoch); the same
+            draws and the same sums as without it. Ignored by the other models.
     """
     if model == "none" or (model == "gaussian" and snr_db is None):
         return signal
     if model == "gaussian":
         noise = torch.randn(signal.shape, generator=generator, dtype=signal.dtype, device=signal.device)
-        return signal + snr_sigma(signal.detach(), snr_db) * noise
+        return signal + (snr_sigma(signal.detach(), snr_db) if sigma is None else sigma) * noise
     if model == "poisson":
         peak = signal.detach().flatten(1).amax(dim=1)
         # A dark example (peak 0) collects no photons: scale 1 keeps it exactly zero.

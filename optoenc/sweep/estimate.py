@@ -98,14 +98,18 @@ def training_step(run, scene_shape, scenes: torch.Tensor | None = None):
     return SimpleNamespace(step=step, module=module, augs=augs, canvas=canvas, precomputed=pre, store_s=store_s, batch=x)
 
 
-def _measure(run, scene_shape, scenes: torch.Tensor | None = None) -> dict[str, float]:
+def _measure(run, scene_shape, scenes: torch.Tensor | None = None, n_train: int = _SAMPLE) -> dict[str, float]:
     """Seconds per training step and per encoded example, timed on ``scenes`` (default: random pixels).
 
     Pass the dataset's own scenes: the cost of a learned encoder's step depends on what lights the
     canvas (support regions build the operator only where a batch has light), so random pixels, which
-    light everything, overestimate a sparse digit's step up to ~25x.
+    light everything, overestimate a sparse digit's step up to ~25x. Likewise a transformed dataset is
+    encoded in chunks of neighbouring objects (:func:`~optoenc.training.augment_once.by_position`): the
+    sample gets the transforms of one such chunk of an ``n_train``-example split, not ones scattered
+    over the whole field of view (17x the time a shifted example costs, for the coded aperture).
     """
-    from ..training.augment_once import draws, encode_transformed
+    from ..augment import Compose
+    from ..training.augment_once import by_position, draws, encode_transformed
 
     cell = training_step(run, scene_shape, scenes)
     enc, augs, canvas, pre, store_s = cell.module.encoder, cell.augs, cell.canvas, cell.precomputed, cell.store_s
@@ -119,7 +123,10 @@ def _measure(run, scene_shape, scenes: torch.Tensor | None = None) -> dict[str, 
     if pre:
         with torch.no_grad():
             imgs = torch.rand(_SAMPLE, *scene_shape) if scenes is None else scenes[:_SAMPLE].to(torch.float32)
-            u = draws(augs, len(imgs), 0, "train") if augs else None
+            u = None
+            if augs:
+                u = draws(augs, max(n_train, len(imgs)), 0, "train")
+                u = u[by_position(Compose(list(augs)), canvas, enc.scene_config.object_height, u)[: len(imgs)]]
 
             def encode(n):
                 if not augs:
@@ -166,7 +173,7 @@ def estimate(planned, sweep_dir=None, threads: int | None = None) -> dict[str, d
             out[p.cell.name] = {"seconds": round(left * known[k], 1), "source": "finished cells"}
             continue
         if k not in measured:
-            measured[k] = _measure(run, shape, sample)
+            measured[k] = _measure(run, shape, sample, n_train)
         m = measured[k]
         steps = math.ceil(n_train / run.trainer.batch_size)
         evals = n_val + (n_test if run.trainer.test_every_epoch else 0)

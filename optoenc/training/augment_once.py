@@ -27,7 +27,7 @@ from ..augment import Compose
 from ..errors import ConfigError
 from . import cache
 
-__all__ = ["draws", "encode_transformed", "transformed_embedding", "store_transformed", "stored_embedding",
+__all__ = ["draws", "encode_transformed", "by_position", "transformed_embedding", "store_transformed", "stored_embedding",
            "paste", "DRAW_MODES"]
 
 #: ``trainer.augment_draw`` values.
@@ -56,14 +56,37 @@ def encode_transformed(encoder, augs, canvas, images: torch.Tensor, u: torch.Ten
     encoder.eval()
     out = []
     step = _chunk(batch_size, images, canvas)
+    order = by_position(comp, canvas, encoder.scene_config.object_height, u)
     try:
         for i in range(0, len(images), step):
-            out.append(transformed_embedding(encoder, comp, canvas, images[i : i + step], u[i : i + step]))
+            idx = order[i : i + step]
+            out.append(transformed_embedding(encoder, comp, canvas, images[idx], u[idx]))
             if progress is not None:
                 progress(len(out[-1]))
     finally:
         encoder.train(was)
-    return torch.cat(out)
+    emb = torch.cat(out)
+    return emb if torch.equal(order, torch.arange(len(order))) else emb[torch.argsort(order)]
+
+
+def by_position(comp: Compose, canvas, object_height: float, u: torch.Tensor) -> torch.Tensor:
+    """An order of the examples in which neighbours on the canvas come together (a stable permutation).
+
+    A chunk's canvases are transformed and measured only over the bounding box of its objects
+    (:func:`transformed_embedding`). Shifted objects lie anywhere in the field of view, so a chunk in
+    dataset order spans the whole canvas (about 20 times a digit, for the coded aperture 384 x 512
+    pixels); in this order a chunk spans a few objects' widths. Tiles of half the largest object's
+    size, taken row by row, every other row backwards (consecutive tiles touch): examples whose
+    objects share a centre (no shift: rescale, rotate, perspective) keep their order, and their chunks
+    are the dataset order's.
+    """
+    state = comp.placed_state(canvas, object_height, u)
+    tile = (state.box.amax(0) / 2).clamp_min(1.0)  # (2,) canvas pixels
+    cell = (state.center / tile).floor().long()
+    cell = cell - cell.amin(0)
+    cols = int(cell[:, 1].max()) + 1
+    snake = torch.where(cell[:, 0] % 2 == 0, cell[:, 1], cols - 1 - cell[:, 1])
+    return torch.argsort(cell[:, 0] * cols + snake, stable=True)
 
 
 def transformed_embedding(encoder, comp: Compose, canvas, scenes: torch.Tensor,

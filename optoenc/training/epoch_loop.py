@@ -85,27 +85,49 @@ def train_epoch(module, batch, batch_size: int, limit: int | float = 1.0) -> dic
     opt = module.optimizers()
     opt = getattr(opt, "optimizer", opt)  # the torch optimiser itself: no per-step Lightning hooks
     base = module.seed + SEED_STRIDE * (module.current_epoch + 1)
+    sigma = _noise_sigma(module, x)
     total, count, count_steps = 0.0, 0, 0
+    predicted, labels = [], []
     for b in range(batch_count(len(order), batch_size, limit)):
         _reseed(base + 7 * b)  # the per-batch loop's on_train_batch_start
         idx = order[b * batch_size : (b + 1) * batch_size]
-        xb, yb = x[idx], y[idx]
-        logits = module.decoder(module.embed(xb, augment=True))
+        xb, yb = x.index_select(0, idx), y.index_select(0, idx)  # x[idx]'s values, gathered row by row: 2x faster
+        logits = module.decoder(module.embed(xb, augment=True, sigma=None if sigma is None else sigma.index_select(0, idx)))
         loss = F.cross_entropy(logits, yb)
         if not math.isfinite(loss.item()):
             _count_steps(module.trainer, count_steps)
             return {"loss": loss.detach(), "batch_idx": b}
-        module.train_acc.update(logits.detach(), yb)
+        # The accuracy is counted once an epoch: the same count as updating the metric every batch (each
+        # example's class is its logits' argmax either way), without torchmetrics' 0.2 ms a call.
+        predicted.append(logits.detach().argmax(1))
+        labels.append(yb)
         total, count = total + loss.detach() * len(yb), count + len(yb)  # as the per-batch loop sums
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
         count_steps += 1
     _count_steps(module.trainer, count_steps)
+    if predicted:
+        module.train_acc.update(torch.cat(predicted), torch.cat(labels))
     mean = total / count if count else torch.tensor(float("nan"))
     module.log("train_loss_epoch", mean, on_step=False, on_epoch=True, prog_bar=True, batch_size=max(count, 1))
     module.log("train_acc", module.train_acc.compute(), on_step=False, on_epoch=True, prog_bar=True)
     return {"loss": mean}
+
+
+def _noise_sigma(module, x: torch.Tensor) -> torch.Tensor | None:
+    """The sensor noise's per-example standard deviation for the split ``x``, computed at its first epoch.
+
+    A fixed encoder's clean embeddings are the same tensor every epoch (the loader hands the split over
+    whole), so each example's noise level is too; kept on the module beside the tensor it belongs to.
+    """
+    kept = getattr(module, "_epoch_sigma", None)
+    if kept is not None and kept[0] is x:
+        return kept[1]
+    with torch.no_grad():
+        sigma = module.encoder.noise_sigma(x)
+    module._epoch_sigma = (x, sigma)
+    return sigma
 
 
 def _count_steps(trainer, n: int) -> None:

@@ -107,9 +107,14 @@ class EncoderClassifier(L.LightningModule):
         """Logits for a batch of scenes (noise included)."""
         return self.decoder(self.embed(x, augment, draws))
 
-    def embed(self, x: torch.Tensor, augment: bool = False, draws: torch.Tensor | None = None) -> torch.Tensor:
-        """Noisy sensor embeddings of a batch (what the decoder reads)."""
-        return self.encoder.add_sensor_noise(self.clean_embedding(x, augment, draws))
+    def embed(self, x: torch.Tensor, augment: bool = False, draws: torch.Tensor | None = None,
+              sigma: torch.Tensor | None = None) -> torch.Tensor:
+        """Noisy sensor embeddings of a batch (what the decoder reads); ``sigma``: the noise's per-example
+        standard deviation, where known (:meth:`~optoenc.encoders.base.OpticalEncoder.noise_sigma`)."""
+        clean = self.clean_embedding(x, augment, draws)
+        if sigma is None:  # an encoder plugin's own add_sensor_noise need not take it
+            return self.encoder.add_sensor_noise(clean)
+        return self.encoder.add_sensor_noise(clean, sigma=sigma)
 
     # --------------------------------------------------------------- steps
     def _step(self, batch, metric, stage: str, augment: bool, batch_idx: int = 0) -> torch.Tensor:

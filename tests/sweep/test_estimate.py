@@ -62,7 +62,7 @@ def _estimate_one(quick, monkeypatch, tmp_path, record, **kw):
 
     run = compose(overrides=quick + SMALL, names={"encoder": "learned_slm", "decoder": "logistic"})
     seen = []
-    monkeypatch.setattr(est, "_measure", lambda r, shape, scenes=None: seen.append(record(scenes)) or
+    monkeypatch.setattr(est, "_measure", lambda r, shape, scenes=None, n_train=0: seen.append(record(scenes)) or
                         {"step_s": 0.01, "encode_s_per_example": 0.0, "precomputed": False})
     planned = [SimpleNamespace(run=run, path=tmp_path / "cell", state="new", cell=SimpleNamespace(name="c"))]
     return run, est.estimate(planned, **kw), seen
