@@ -104,39 +104,46 @@ def test_once_mode_rejects_an_augmentation_without_declared_draws():
         draws([Legacy()], 4, 0, "train")
 
 
-def test_by_position_groups_shifted_objects_and_keeps_the_order_of_centred_ones():
+def test_encoding_order_groups_objects_by_place_and_size_and_keeps_the_order_of_alike_ones():
     # A chunk is transformed and measured over the bounding box of its objects: in dataset order shifted
-    # digits make every chunk's box the whole field of view; in by_position's order a chunk's box is a few
-    # digits wide. Without a shift every object shares the centre and the order is the dataset's (so those
+    # digits make every chunk's box the whole field of view, and rescaled ones make it the largest digit's;
+    # in encoding_order's order a chunk's box is a few digits wide, and about as large as its own largest.
+    # Objects alike in centre and size (rotate, perspective) keep the dataset's order (so those
     # embeddings, chunk for chunk, are what they were).
-    from optoenc.augment import Rotate, Shift
-    from optoenc.training.augment_once import by_position
+    from optoenc.augment import Perspective, Rescale, Rotate, Shift
+    from optoenc.training.augment_once import encoding_order
 
     n, step = 4000, 250
-    shift = Compose([Shift(), Rotate()])
-    u = draws(list(shift.augmentations), n, seed=0, split="train")
-    order = by_position(shift, GEOM, 0.12, u)
-    assert torch.equal(order.sort().values, torch.arange(n))  # a permutation
-    centres = shift.placed_state(GEOM, 0.12, u).center
 
-    def mean_box(idx):
-        boxes = [centres[idx[i : i + step]] for i in range(0, n, step)]
-        return sum(float((b.amax(0) - b.amin(0)).prod()) for b in boxes) / len(boxes)
+    def chunks(comp, idx, u):
+        state = comp.placed_state(GEOM, 0.12, u)
+        lo, hi = state.center - state.box / 2, state.center + state.box / 2
+        return [(hi[idx[i : i + step]].amax(0) - lo[idx[i : i + step]].amin(0)).prod() for i in range(0, n, step)]
 
-    field = mean_box(torch.arange(n))
-    assert mean_box(order) < 0.12 * field  # measured 8.9 % (tiles taken row-major, without the snake: 16 %)
-    for augs in ([Rotate()], [next(c() for c in BUILTIN if c.name == "rescale"), Rotate()]):
+    def mean_window(comp, idx, u):
+        return float(sum(chunks(comp, idx, u))) / len(chunks(comp, idx, u))
+
+    for augs, most in (([Shift(), Rotate()], 0.27), ([Rescale(), Rotate()], 0.6)):
         comp = Compose(augs)
-        assert torch.equal(by_position(comp, GEOM, 0.12, draws(augs, n, seed=0, split="train")), torch.arange(n))
+        u = draws(augs, n, seed=0, split="train")
+        order = encoding_order(comp, GEOM, 0.12, u)
+        assert torch.equal(order.sort().values, torch.arange(n))  # a permutation
+        # measured: shift 22 % on this small canvas, where a digit is a quarter of the field's height (tiles
+        # taken row-major, without the snake: 31 %); rescale 41 % (a window's area goes with the height
+        # squared, and the heights are uniform in [2, 20] cm: mean h^2 / max h^2 = 0.37)
+        assert mean_window(comp, order, u) < most * mean_window(comp, torch.arange(n), u)
+    for augs in ([Rotate()], [Perspective()], [Rotate(), Perspective()]):
+        comp = Compose(augs)
+        assert torch.equal(encoding_order(comp, GEOM, 0.12, draws(augs, n, seed=0, split="train")), torch.arange(n))
 
 
 def test_encode_transformed_returns_the_embeddings_in_dataset_order(tmp_path, quick):
-    # Chunks taken in by_position's order, the result put back in the dataset's: each example's embedding is
+    # Chunks taken in encoding_order's order, the result put back in the dataset's: each example's embedding is
     # its own, measured alone. Only float32 rounding differs (another chunk, another operator region: the sums
     # run in another order; 2e-7 relative measured on MNIST), hence the 1e-5 relative tolerance.
     from optoenc.config import compose
     from optoenc.training import build
-    from optoenc.training.augment_once import by_position, encode_transformed, transformed_embedding
+    from optoenc.training.augment_once import encoding_order, encode_transformed, transformed_embedding
 
     over = quick + [f"trainer.cache_dir={tmp_path}", "trainer.augment_draw=once", "sensor.embedding=[6,8]",
                     "fidelity.grid=[48,64]", "trainer.cache=false"]
@@ -144,7 +151,7 @@ def test_encode_transformed_returns_the_embeddings_in_dataset_order(tmp_path, qu
     enc, augs, canvas = parts.module.encoder, parts.module.augmentations, parts.module.canvas
     x = parts.splits.test[0][:60]
     u = draws(augs, len(x), 0, "test")
-    assert not torch.equal(by_position(Compose(list(augs)), canvas, enc.scene_config.object_height, u), torch.arange(60))
+    assert not torch.equal(encoding_order(Compose(list(augs)), canvas, enc.scene_config.object_height, u), torch.arange(60))
     got = encode_transformed(enc, augs, canvas, x, u, 16)
     alone = torch.cat([transformed_embedding(enc, Compose(list(augs)), canvas, x[i : i + 1], u[i : i + 1]) for i in range(60)])
     torch.testing.assert_close(got, alone, rtol=1e-5, atol=1e-6 * float(alone.abs().max()))

@@ -104,12 +104,12 @@ def _measure(run, scene_shape, scenes: torch.Tensor | None = None, n_train: int 
     Pass the dataset's own scenes: the cost of a learned encoder's step depends on what lights the
     canvas (support regions build the operator only where a batch has light), so random pixels, which
     light everything, overestimate a sparse digit's step up to ~25x. Likewise a transformed dataset is
-    encoded in chunks of neighbouring objects (:func:`~optoenc.training.augment_once.by_position`): the
+    encoded in chunks of neighbouring objects (:func:`~optoenc.training.augment_once.encoding_order`): the
     sample gets the transforms of one such chunk of an ``n_train``-example split, not ones scattered
     over the whole field of view (17x the time a shifted example costs, for the coded aperture).
     """
     from ..augment import Compose
-    from ..training.augment_once import by_position, draws, encode_transformed
+    from ..training.augment_once import encoding_order, draws, encode_transformed
 
     cell = training_step(run, scene_shape, scenes)
     enc, augs, canvas, pre, store_s = cell.module.encoder, cell.augs, cell.canvas, cell.precomputed, cell.store_s
@@ -126,7 +126,7 @@ def _measure(run, scene_shape, scenes: torch.Tensor | None = None, n_train: int 
             u = None
             if augs:
                 u = draws(augs, max(n_train, len(imgs)), 0, "train")
-                u = u[by_position(Compose(list(augs)), canvas, enc.scene_config.object_height, u)[: len(imgs)]]
+                u = u[encoding_order(Compose(list(augs)), canvas, enc.scene_config.object_height, u)[: len(imgs)]]
 
             def encode(n):
                 if not augs:

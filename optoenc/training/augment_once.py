@@ -27,7 +27,7 @@ from ..augment import Compose
 from ..errors import ConfigError
 from . import cache
 
-__all__ = ["draws", "encode_transformed", "by_position", "transformed_embedding", "store_transformed", "stored_embedding",
+__all__ = ["draws", "encode_transformed", "encoding_order", "transformed_embedding", "store_transformed", "stored_embedding",
            "paste", "DRAW_MODES"]
 
 #: ``trainer.augment_draw`` values.
@@ -56,7 +56,7 @@ def encode_transformed(encoder, augs, canvas, images: torch.Tensor, u: torch.Ten
     encoder.eval()
     out = []
     step = _chunk(batch_size, images, canvas)
-    order = by_position(comp, canvas, encoder.scene_config.object_height, u)
+    order = encoding_order(comp, canvas, encoder.scene_config.object_height, u)
     try:
         for i in range(0, len(images), step):
             idx = order[i : i + step]
@@ -69,16 +69,17 @@ def encode_transformed(encoder, augs, canvas, images: torch.Tensor, u: torch.Ten
     return emb if torch.equal(order, torch.arange(len(order))) else emb[torch.argsort(order)]
 
 
-def by_position(comp: Compose, canvas, object_height: float, u: torch.Tensor) -> torch.Tensor:
-    """An order of the examples in which neighbours on the canvas come together (a stable permutation).
+def encoding_order(comp: Compose, canvas, object_height: float, u: torch.Tensor) -> torch.Tensor:
+    """An order of the examples in which neighbours on the canvas, and objects of a size, come together.
 
     A chunk's canvases are transformed and measured only over the bounding box of its objects
     (:func:`transformed_embedding`). Shifted objects lie anywhere in the field of view, so a chunk in
     dataset order spans the whole canvas (about 20 times a digit, for the coded aperture 384 x 512
     pixels); in this order a chunk spans a few objects' widths. Tiles of half the largest object's
-    size, taken row by row, every other row backwards (consecutive tiles touch): examples whose
-    objects share a centre (no shift: rescale, rotate, perspective) keep their order, and their chunks
-    are the dataset order's.
+    size, taken row by row, every other row backwards (consecutive tiles touch), and within a tile the
+    smaller objects first: a chunk of rescaled digits is as large as its own largest, not the
+    dataset's. A stable permutation: examples whose objects share a centre and a size (rotate,
+    perspective) keep their order, and their chunks are the dataset order's.
     """
     if len(u) < 2:
         return torch.arange(len(u), device=u.device)
@@ -88,7 +89,8 @@ def by_position(comp: Compose, canvas, object_height: float, u: torch.Tensor) ->
     cell = cell - cell.amin(0)
     cols = int(cell[:, 1].max()) + 1
     snake = torch.where(cell[:, 0] % 2 == 0, cell[:, 1], cols - 1 - cell[:, 1])
-    return torch.argsort(cell[:, 0] * cols + snake, stable=True)
+    by_size = torch.argsort(state.box.prod(1), stable=True)
+    return by_size[torch.argsort((cell[:, 0] * cols + snake)[by_size], stable=True)]
 
 
 def transformed_embedding(encoder, comp: Compose, canvas, scenes: torch.Tensor,
@@ -203,7 +205,7 @@ def token(augs, canvas, u: dict[str, torch.Tensor]) -> str:
 
     h = hashlib.sha256(repr([(a.name, to_dict(a.config)) for a in augs]).encode())
     h.update(repr(canvas).encode())
-    # The chunks' order (by_position) sets shifted embeddings' float32 rounding: entries encoded in the
+    # The chunks' order (encoding_order) sets shifted embeddings' float32 rounding: entries encoded in the
     # dataset's order, before it, are not served as this code's.
     h.update(b"chunks by position")
     for k in sorted(u):
