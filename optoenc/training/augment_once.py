@@ -205,9 +205,9 @@ def token(augs, canvas, u: dict[str, torch.Tensor]) -> str:
 
     h = hashlib.sha256(repr([(a.name, to_dict(a.config)) for a in augs]).encode())
     h.update(repr(canvas).encode())
-    # The chunks' order (encoding_order) sets shifted embeddings' float32 rounding: entries encoded in the
-    # dataset's order, before it, are not served as this code's.
-    h.update(b"chunks by position")
+    # The chunks' order (encoding_order) sets shifted and rescaled embeddings' float32 rounding: entries
+    # encoded in another order (the dataset's, before it) are not served as this code's.
+    h.update(b"chunks in encoding_order: place, then size")
     for k in sorted(u):
         h.update(k.encode() + cache.tensor_digest(u[k]).encode())
     return h.hexdigest()
