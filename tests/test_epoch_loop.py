@@ -130,3 +130,17 @@ def test_the_noise_level_computed_once_is_the_per_batch_one_bit_for_bit(shape):
     a = add_noise(x[idx], 40.0, generator=torch.Generator().manual_seed(7))
     b = add_noise(x[idx], 40.0, generator=torch.Generator().manual_seed(7), sigma=whole.index_select(0, idx))
     assert torch.equal(a, b) and not torch.equal(a, x[idx])
+
+
+def test_an_encoder_with_its_own_noise_gets_no_precomputed_noise_level():
+    # A plugin may override add_sensor_noise with the older signature (no sigma): the epoch loop passes a
+    # precomputed noise level only where noise_sigma gives one, so such an encoder must give none.
+    from optoenc.encoders.diffuser import Diffuser
+
+    class OwnNoise(Diffuser):
+        def add_sensor_noise(self, clean, generator=None):
+            return clean + 0.0
+
+    x = torch.rand(4, *Diffuser().output_shape)
+    assert Diffuser().noise_sigma(x) is not None
+    assert OwnNoise().noise_sigma(x) is None

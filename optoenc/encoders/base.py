@@ -540,10 +540,11 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         """The per-example standard deviation :meth:`add_sensor_noise` gives ``clean`` (None: not Gaussian noise).
 
         Row for row the same numbers as computed batch by batch (each example's variance is its own
-        reduction): a fixed encoder's embeddings can have theirs computed once, not every epoch.
+        reduction): a fixed encoder's embeddings can have theirs computed once, not every epoch. None too
+        where a subclass brings its own :meth:`add_sensor_noise` (its noise is its own business).
         """
         s = self.sensor
-        if s.noise != "gaussian" or s.snr_db is None:
+        if s.noise != "gaussian" or s.snr_db is None or type(self).add_sensor_noise is not OpticalEncoder.add_sensor_noise:
             return None
         return imaging.snr_sigma(clean.detach(), s.snr_db)
 
