@@ -27,6 +27,8 @@ __all__ = ["kind_of", "estimate"]
 _WARM, _TIMED = 2, 5
 #: Scenes of the dataset timed per cell kind (a training batch at the paper's batch size).
 _SAMPLE = 200
+#: Chunks the sample of a transformed dataset is encoded in (:func:`_measure`).
+_RUNS = 4
 
 
 def kind_of(run) -> tuple:
@@ -104,12 +106,13 @@ def _measure(run, scene_shape, scenes: torch.Tensor | None = None, n_train: int 
     Pass the dataset's own scenes: the cost of a learned encoder's step depends on what lights the
     canvas (support regions build the operator only where a batch has light), so random pixels, which
     light everything, overestimate a sparse digit's step up to ~25x. Likewise a transformed dataset is
-    encoded in chunks of neighbouring objects (:func:`~optoenc.training.augment_once.encoding_order`): the
-    sample gets the transforms of one such chunk of an ``n_train``-example split, not ones scattered
-    over the whole field of view (17x the time a shifted example costs, for the coded aperture).
+    encoded in chunks of neighbouring objects of a size (:func:`~optoenc.training.augment_once.encoding_order`):
+    the sample is encoded as a few such chunks, runs of consecutive examples spread along the order of an
+    ``n_train``-example split (small and large rescaled digits alike), not as one chunk of transforms
+    scattered over the whole field of view (17x the time a shifted example costs, for the coded aperture).
     """
     from ..augment import Compose
-    from ..training.augment_once import encoding_order, draws, encode_transformed
+    from ..training.augment_once import draws, encoding_order, transformed_embedding
 
     cell = training_step(run, scene_shape, scenes)
     enc, augs, canvas, pre, store_s = cell.module.encoder, cell.augs, cell.canvas, cell.precomputed, cell.store_s
@@ -123,20 +126,27 @@ def _measure(run, scene_shape, scenes: torch.Tensor | None = None, n_train: int 
     if pre:
         with torch.no_grad():
             imgs = torch.rand(_SAMPLE, *scene_shape) if scenes is None else scenes[:_SAMPLE].to(torch.float32)
-            u = None
-            if augs:
-                u = draws(augs, max(n_train, len(imgs)), 0, "train")
-                u = u[encoding_order(Compose(list(augs)), canvas, enc.scene_config.object_height, u)[: len(imgs)]]
+            runs = None
+            if augs:  # _RUNS chunks of consecutive examples, spread along the split's encoding order
+                comp = Compose(list(augs))
+                u_all = draws(augs, max(n_train, len(imgs)), 0, "train")
+                order = encoding_order(comp, canvas, enc.scene_config.object_height, u_all)
+                r = max(1, len(imgs) // _RUNS)
+                starts = torch.linspace(0, len(order) - r, _RUNS).long().tolist()
+                runs = [u_all[order[s : s + r]] for s in starts]
 
             def encode(n):
                 if not augs:
                     return enc.measure(imgs[:n])
-                return encode_transformed(enc, augs, canvas, imgs[:n], u[:n], n)
+                if n < len(imgs):  # the warm-up
+                    return transformed_embedding(enc, comp, canvas, imgs[:n], runs[0][:n])
+                r = len(runs[0])
+                return [transformed_embedding(enc, comp, canvas, imgs[i * r : (i + 1) * r], u) for i, u in enumerate(runs)]
 
             encode(10)
             t0 = time.perf_counter()
             encode(len(imgs))
-            per_example = (time.perf_counter() - t0) / len(imgs)
+            per_example = (time.perf_counter() - t0) / (len(runs) * len(runs[0]) if augs else len(imgs))
     return {"step_s": step, "encode_s_per_example": per_example + store_s, "precomputed": pre}
 
 
