@@ -112,7 +112,7 @@ def _measure(run, scene_shape, scenes: torch.Tensor | None = None, n_train: int 
     scattered over the whole field of view (17x the time a shifted example costs, for the coded aperture).
     """
     from ..augment import Compose
-    from ..training.augment_once import draws, encoding_order, transformed_embedding
+    from ..training.augment_once import draws, encode_transformed, encoding_order
 
     cell = training_step(run, scene_shape, scenes)
     enc, augs, canvas, pre, store_s = cell.module.encoder, cell.augs, cell.canvas, cell.precomputed, cell.store_s
@@ -126,27 +126,23 @@ def _measure(run, scene_shape, scenes: torch.Tensor | None = None, n_train: int 
     if pre:
         with torch.no_grad():
             imgs = torch.rand(_SAMPLE, *scene_shape) if scenes is None else scenes[:_SAMPLE].to(torch.float32)
-            runs = None
-            if augs:  # _RUNS chunks of consecutive examples, spread along the split's encoding order
-                comp = Compose(list(augs))
-                u_all = draws(augs, max(n_train, len(imgs)), 0, "train")
-                order = encoding_order(comp, canvas, enc.scene_config.object_height, u_all)
-                r = max(1, len(imgs) // _RUNS)
+            r = max(1, len(imgs) // _RUNS)
+            if augs:  # _RUNS runs of consecutive examples, spread along the split's encoding order
+                u = draws(augs, max(n_train, len(imgs)), 0, "train")
+                order = encoding_order(Compose(list(augs)), canvas, enc.scene_config.object_height, u)
                 starts = torch.linspace(0, len(order) - r, _RUNS).long().tolist()
-                runs = [u_all[order[s : s + r]] for s in starts]
+                u = u[torch.cat([order[s : s + r] for s in starts])[: len(imgs)]]  # encoded so, one run a chunk
+                imgs = imgs[: len(u)]
 
             def encode(n):
                 if not augs:
                     return enc.measure(imgs[:n])
-                if n < len(imgs):  # the warm-up
-                    return transformed_embedding(enc, comp, canvas, imgs[:n], runs[0][:n])
-                r = len(runs[0])
-                return [transformed_embedding(enc, comp, canvas, imgs[i * r : (i + 1) * r], u) for i, u in enumerate(runs)]
+                return encode_transformed(enc, augs, canvas, imgs[:n], u[:n], r)
 
             encode(10)
             t0 = time.perf_counter()
             encode(len(imgs))
-            per_example = (time.perf_counter() - t0) / (len(runs) * len(runs[0]) if augs else len(imgs))
+            per_example = (time.perf_counter() - t0) / len(imgs)
     return {"step_s": step, "encode_s_per_example": per_example + store_s, "precomputed": pre}
 
 

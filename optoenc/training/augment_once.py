@@ -65,8 +65,7 @@ def encode_transformed(encoder, augs, canvas, images: torch.Tensor, u: torch.Ten
                 progress(len(out[-1]))
     finally:
         encoder.train(was)
-    emb = torch.cat(out)
-    return emb if torch.equal(order, torch.arange(len(order))) else emb[torch.argsort(order)]
+    return torch.cat(out)[torch.argsort(order)]  # back in the dataset's order
 
 
 def encoding_order(comp: Compose, canvas, object_height: float, u: torch.Tensor) -> torch.Tensor:
