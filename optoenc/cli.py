@@ -136,6 +136,10 @@ def _parser() -> argparse.ArgumentParser:
                     help="torch threads per worker (default: the machine's cores split between the workers; "
                          "set it when other work, such as a second sweep, shares the cores)")
     sw.add_argument("--executor", default="local", help="local (processes), submitit-local or slurm (needs submitit)")
+    sw.add_argument("--start", default="auto",
+                    help="how a local cell's process starts: forkserver (forked from one process that has imported "
+                         "torch, Lightning and optoenc: no per-cell imports, seconds a cell), subprocess (a fresh "
+                         "interpreter per cell), auto (forkserver where the platform has it and the cell is one process)")
     sw.add_argument("--restart-changed", action="store_true", help="move aside cells whose stored config differs, re-run them")
     sw.add_argument("--collect", action="store_true", help="only collect finished cells into the tables and plots")
     sw.add_argument("--order", default="spec",
@@ -383,6 +387,8 @@ def cmd_sweep(args, extra) -> int:
         raise ConfigError("--only", ",".join(args.only), "matches no cell (see the names with --dry-run)")
     if args.order not in sweep.ORDERS:
         raise ConfigError("--order", args.order, f"one of {', '.join(sweep.ORDERS)}")
+    if args.start not in sweep.STARTS:
+        raise ConfigError("--start", args.start, f"one of {', '.join(sweep.STARTS)}")
     if args.dry_run or (args.order == "longest" and not args.collect):
         from .sweep.estimate import estimate
 
@@ -412,7 +418,8 @@ def cmd_sweep(args, extra) -> int:
                 (bar.write if sys.stderr.isatty() else lambda m: print(m, file=sys.stderr))(msg)
 
             failures = sweep.run(planned, out, workers=args.workers, executor=args.executor,
-                                 restart_changed=args.restart_changed, on_done=done, threads=args.threads)
+                                 restart_changed=args.restart_changed, on_done=done, threads=args.threads,
+                                 start=args.start)
     else:
         failures = {}
     files = sweep.write_tables(spec, sweep.plan(spec, out), out)  # the tables always cover every cell

@@ -1,8 +1,9 @@
 """Running a sweep: plan the cells, run what is not finished, in parallel processes or on a cluster.
 
 Every cell runs in its own process (a crash, a leak or a thread setting of
-one cell never touches another): locally ``python -m optoenc.sweep.cell``,
-on a cluster through submitit (SLURM, or its local executor). Fixed-encoder
+one cell never touches another): locally forked from a server that has
+imported what cells need (or ``python -m optoenc.sweep.cell``:
+:mod:`optoenc.sweep.launch`), on a cluster through submitit (SLURM, or its local executor). Fixed-encoder
 cells share the on-disk embedding cache, whose writes are atomic.
 """
 
@@ -10,8 +11,6 @@ from __future__ import annotations
 
 import os
 import signal
-import subprocess
-import sys
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor, as_completed
@@ -21,10 +20,11 @@ from typing import Callable, Iterable
 
 from ..errors import ConfigError
 from ..training.rundir import RUN_FILES, atomic_write_text
+from .launch import STARTS, launch, resolve_start
 from .cells import add_clock, cell_dir, cell_state, compose_cell, config_differences
 from .spec import Cell, SweepSpec
 
-__all__ = ["PlannedCell", "plan", "run", "thread_budget", "resolve_threads", "EXECUTORS"]
+__all__ = ["PlannedCell", "plan", "run", "thread_budget", "resolve_threads", "EXECUTORS", "STARTS"]
 
 #: Where cells run: in local processes, or through submitit.
 EXECUTORS = ("local", "submitit-local", "slurm")
@@ -120,7 +120,7 @@ class _Running:
 
     def __init__(self) -> None:
         self.lock = threading.Lock()
-        self.procs: dict[str, subprocess.Popen] = {}
+        self.procs: dict[str, object] = {}  # cell name -> its process (Popen-like: :func:`.launch.launch`)
         self.stopping = False
 
     def stop(self, signum: int) -> None:
@@ -136,25 +136,21 @@ class _Running:
             proc.wait()
 
 
-def _run_local(p: PlannedCell, threads: int, running: _Running) -> tuple[bool, str]:
-    env = {**os.environ, "OMP_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads)}
-    with open(p.path / "log.txt", "ab") as log:
+def _run_local(p: PlannedCell, threads: int, running: _Running, start: str = "subprocess") -> tuple[bool, str]:
+    """Run the cell in its own process (``start``: forkserver or subprocess) and wait for it; its time goes
+    on the cell's clock, launch to exit."""
+    with running.lock:
+        if running.stopping:
+            return False, "not started: the sweep was interrupted"
+        launched = time.monotonic()
+        proc = launch(p.path, threads, start)
+        running.procs[p.cell.name] = proc
+    try:
+        proc.wait()
+    finally:
+        add_clock(p.path, time.monotonic() - launched)
         with running.lock:
-            if running.stopping:
-                return False, "not started: the sweep was interrupted"
-            launched = time.monotonic()
-            proc = subprocess.Popen(
-                [sys.executable, "-m", "optoenc.sweep.cell", str(p.path), str(threads)],
-                stdout=log, stderr=subprocess.STDOUT, env=env, stdin=subprocess.DEVNULL,
-                start_new_session=True,  # a terminal's Ctrl-C reaches the sweep only, which passes it on once
-            )
-            running.procs[p.cell.name] = proc
-        try:
-            proc.wait()
-        finally:
-            add_clock(p.path, time.monotonic() - launched)
-            with running.lock:
-                running.procs.pop(p.cell.name, None)
+            running.procs.pop(p.cell.name, None)
     return proc.returncode == 0, _error(p)
 
 
@@ -192,12 +188,15 @@ def run(
     slurm: dict | None = None,
     on_done: Callable[[PlannedCell, bool, str], None] | None = None,
     threads: int | None = None,
+    start: str = "auto",
 ) -> dict[str, str]:
     """Run every unfinished cell; returns ``{cell name: error}`` for the cells that failed.
 
     A failing cell never stops the others. ``workers`` cells run at once, each with ``threads`` torch
     threads (None: :func:`thread_budget`, the machine's cores split between the workers; give it where
     other work shares the machine, such as a second sweep, so that the threads do not outnumber the cores).
+    ``start``: how a local cell's process starts (:data:`~optoenc.sweep.launch.STARTS`; ``auto``: forked
+    from a server that has imported what cells need, where it can be: :mod:`optoenc.sweep.launch`).
     """
     if executor not in EXECUTORS:
         raise ConfigError("--executor", executor, f"one of {', '.join(EXECUTORS)}")
@@ -205,6 +204,7 @@ def run(
         raise ConfigError("--workers", workers, "must be >= 1")
     threads = resolve_threads(workers, threads)
     todo = [p for p in planned if p.todo]
+    starts = [resolve_start(start, p.run) for p in todo]  # refused before any cell runs
     for p in todo:
         _prepare(p, restart_changed)
     failures: dict[str, str] = {}
@@ -219,7 +219,7 @@ def run(
         running = _Running()
         pool = ThreadPoolExecutor(max_workers=workers)
         try:
-            futures = {pool.submit(_run_local, p, threads, running): p for p in todo}
+            futures = {pool.submit(_run_local, p, threads, running, s): p for p, s in zip(todo, starts)}
             for fut in as_completed(futures):
                 ok, err = fut.result()
                 done(futures[fut], ok, err)

@@ -30,7 +30,7 @@ def test_a_bad_thread_count_names_the_option(bad):
 def test_each_local_cell_process_gets_the_given_threads(monkeypatch, tmp_path):
     seen = []
 
-    def fake_cell(p, threads, running):  # stands in for the cell's process
+    def fake_cell(p, threads, running, start):  # stands in for the cell's process
         seen.append((p.cell, threads))
         return True, ""
 

@@ -1,0 +1,88 @@
+"""How a local sweep starts its cells: forked from a preloaded server or as fresh interpreters.
+
+Both must give the same run, bit for bit (the fork changes where the imports happen, nothing the cell
+computes), and a forked cell must see the sweep's environment as it is when the cell starts, not as
+it was when the server started (a second sweep in the same process with another setting).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from types import SimpleNamespace
+
+import pytest
+
+from optoenc import sweep
+from optoenc.cli import main
+from optoenc.errors import ConfigError
+from optoenc.sweep import launch
+
+SPEC = """
+name: tiny
+base:
+  dataset: {train_size: 300, val_size: 100, test_size: 100}
+  trainer: {max_epochs: 2, verify_preset: null, test_every_epoch: true, eval_batch_size: 200}
+  fidelity: {grid: [48, 64]}
+  output: {examples: 0}
+axes:
+  encoder: [lens]
+  sensor.embedding: [[6, 8]]
+  decoder: [logistic]
+"""
+
+
+def _run(tmp_path, name, start):
+    spec_path = tmp_path / "tiny.yaml"
+    spec_path.write_text(SPEC)
+    spec = sweep.load_spec(spec_path)
+    out = tmp_path / name
+    planned = sweep.plan(spec, out)
+    failures = sweep.run(planned, out, workers=1, threads=1, start=start)
+    return planned[0].path, failures
+
+
+def _metrics(path):
+    rows = list(csv.DictReader(open(path / "metrics.csv")))
+    return [{k: v for k, v in r.items() if "time" not in k} for r in rows]
+
+
+@pytest.mark.skipif("forkserver" not in __import__("multiprocessing").get_all_start_methods(), reason="no forkserver")
+def test_a_forked_cell_trains_as_a_fresh_interpreter_does_and_sees_the_sweeps_environment_now(tmp_path, monkeypatch):
+    forked, failures = _run(tmp_path, "forked", "forkserver")
+    assert failures == {}
+    fresh, failures = _run(tmp_path, "fresh", "subprocess")
+    assert failures == {}
+    # Same seed, same run: every logged number of every epoch (times aside) and the summary's accuracies.
+    assert _metrics(forked) == _metrics(fresh) and len(_metrics(forked)) == 2
+    a, b = (json.loads((p / "summary.json").read_text()) for p in (forked, fresh))
+    assert (a["test_acc"], a["val_acc"]) == (b["test_acc"], b["val_acc"])
+    assert json.loads((forked / "status.json").read_text())["state"] == "finished"
+    # The server runs on (it started with the first sweep); a setting changed since reaches the next cell:
+    # a bad allocator mode makes the cell refuse it, in one line, in the cell's own log.
+    monkeypatch.setenv("OPTOENC_MALLOC", "bogus-mode")
+    again, failures = _run(tmp_path, "again", "forkserver")
+    assert len(failures) == 1
+    log = (again / "log.txt").read_text()
+    assert "OPTOENC_MALLOC" in log and "bogus-mode" in log
+
+
+def test_start_methods_are_resolved_per_cell_and_bad_ones_refused():
+    one = SimpleNamespace(trainer=SimpleNamespace(devices="1", num_nodes=1))
+    two = SimpleNamespace(trainer=SimpleNamespace(devices="2", num_nodes=1))
+    assert launch.resolve_start("subprocess", one) == "subprocess"
+    # A multi-process cell re-runs its command line for its other ranks: never forked from the server.
+    assert launch.resolve_start("auto", two) == "subprocess"
+    with pytest.raises(ConfigError, match="--start"):
+        launch.resolve_start("forkserver", two)
+    with pytest.raises(ConfigError, match="--start.*auto, forkserver, subprocess"):
+        launch.resolve_start("fork", one)
+
+
+def test_the_cli_refuses_an_unknown_start_in_one_line(tmp_path, capsys):
+    spec = tmp_path / "tiny.yaml"
+    spec.write_text(SPEC)
+    code = main(["sweep", str(spec), "--out", str(tmp_path / "s"), "--start", "spawn"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "\n" not in err and "--start" in err and "spawn" in err
+    assert not (tmp_path / "s").exists()  # refused before anything ran or was written
