@@ -18,23 +18,9 @@ from optoenc.cli import main
 from optoenc.errors import ConfigError
 from optoenc.sweep import launch
 
-SPEC = """
-name: tiny
-base:
-  dataset: {train_size: 300, val_size: 100, test_size: 100}
-  trainer: {max_epochs: 2, verify_preset: null, test_every_epoch: true, eval_batch_size: 200}
-  fidelity: {grid: [48, 64]}
-  output: {examples: 0}
-axes:
-  encoder: [lens]
-  sensor.embedding: [[6, 8]]
-  decoder: [logistic]
-"""
-
-
-def _run(tmp_path, name, start):
+def _run(tmp_path, name, start, text):
     spec_path = tmp_path / "tiny.yaml"
-    spec_path.write_text(SPEC)
+    spec_path.write_text(text)
     spec = sweep.load_spec(spec_path)
     out = tmp_path / name
     planned = sweep.plan(spec, out)
@@ -48,10 +34,12 @@ def _metrics(path):
 
 
 @pytest.mark.skipif("forkserver" not in __import__("multiprocessing").get_all_start_methods(), reason="no forkserver")
-def test_a_forked_cell_trains_as_a_fresh_interpreter_does_and_sees_the_sweeps_environment_now(tmp_path, monkeypatch):
-    forked, failures = _run(tmp_path, "forked", "forkserver")
+def test_a_forked_cell_trains_as_a_fresh_interpreter_does_and_sees_the_sweeps_environment_now(tmp_path, monkeypatch,
+                                                                                             tiny_spec):
+    text = tiny_spec(trainer=", test_every_epoch: true")
+    forked, failures = _run(tmp_path, "forked", "forkserver", text)
     assert failures == {}
-    fresh, failures = _run(tmp_path, "fresh", "subprocess")
+    fresh, failures = _run(tmp_path, "fresh", "subprocess", text)
     assert failures == {}
     # Same seed, same run: every logged number of every epoch (times aside) and the summary's accuracies.
     assert _metrics(forked) == _metrics(fresh) and len(_metrics(forked)) == 2
@@ -61,7 +49,7 @@ def test_a_forked_cell_trains_as_a_fresh_interpreter_does_and_sees_the_sweeps_en
     # The server runs on (it started with the first sweep); a setting changed since reaches the next cell:
     # a bad allocator mode makes the cell refuse it, in one line, in the cell's own log.
     monkeypatch.setenv("OPTOENC_MALLOC", "bogus-mode")
-    again, failures = _run(tmp_path, "again", "forkserver")
+    again, failures = _run(tmp_path, "again", "forkserver", text)
     assert len(failures) == 1
     log = (again / "log.txt").read_text()
     assert "OPTOENC_MALLOC" in log and "bogus-mode" in log
@@ -79,9 +67,9 @@ def test_start_methods_are_resolved_per_cell_and_bad_ones_refused():
         launch.resolve_start("fork", one)
 
 
-def test_the_cli_refuses_an_unknown_start_in_one_line(tmp_path, capsys):
+def test_the_cli_refuses_an_unknown_start_in_one_line(tmp_path, capsys, tiny_spec):
     spec = tmp_path / "tiny.yaml"
-    spec.write_text(SPEC)
+    spec.write_text(tiny_spec())
     code = main(["sweep", str(spec), "--out", str(tmp_path / "s"), "--start", "spawn"])
     err = capsys.readouterr().err.strip()
     assert code == 2 and "\n" not in err and "--start" in err and "spawn" in err

@@ -14,18 +14,7 @@ import time
 
 import pytest
 
-SPEC = """
-name: tiny
-base:
-  dataset: {{train_size: 300, val_size: 100, test_size: 100}}
-  trainer: {{max_epochs: 2, verify_preset: null, test_every_epoch: true, eval_batch_size: 200}}
-  fidelity: {{grid: [48, 64]}}
-  output: {{examples: 0}}
-axes:
-  encoder: [lens]
-  sensor.embedding: [[6, 8]]
-  decoder: [logistic]
-cells:
+EXTRA = """cells:
   - {{encoder: lens, sensor.embedding: [3, 4], decoder: logistic, dataset.root: "{missing}"}}
 paper:
   - {{where: {{encoder: lens, sensor.embedding: [6, 8], decoder: logistic}}, acc: 42.8}}
@@ -37,9 +26,9 @@ def _sweep(*args):
                           timeout=600)
 
 
-def test_sweep_isolates_failures_skips_finished_and_collects(tmp_path):
+def test_sweep_isolates_failures_skips_finished_and_collects(tmp_path, tiny_spec):
     spec = tmp_path / "tiny.yaml"
-    spec.write_text(SPEC.format(missing=tmp_path / "no-mnist-here"))
+    spec.write_text(tiny_spec(trainer=", test_every_epoch: true", axes=EXTRA.format(missing=tmp_path / "no-mnist-here")))
     out = tmp_path / "sweep"
     first = _sweep(str(spec), "--out", str(out), "--workers", "2")
     assert first.returncode == 1, first.stderr  # one cell failed: non-zero, but the other finished
@@ -84,28 +73,13 @@ def test_sweep_isolates_failures_skips_finished_and_collects(tmp_path):
     assert next(line for line in dry.stdout.splitlines() if line.rstrip().endswith(ok.name)).startswith("finished")
 
 
-LONG = """
-name: long
-base:
-  dataset: {train_size: 300, val_size: 100, test_size: 100}
-  trainer: {max_epochs: 400, verify_preset: null, eval_batch_size: 200}
-  fidelity: {grid: [48, 64]}
-  output: {examples: 0}
-axes:
-  encoder: [lens]
-  sensor.embedding: [[6, 8]]
-  decoder: [logistic]
-  seed: [0, 1, 2]
-"""
-
-
 @pytest.mark.parametrize("how", ["sigterm-to-the-sweep", "ctrl-c-to-its-group"])
-def test_a_stopped_sweep_stops_its_running_cell_and_starts_no_more(tmp_path, how):
+def test_a_stopped_sweep_stops_its_running_cell_and_starts_no_more(tmp_path, how, tiny_spec):
     # A stopped sweep used to drain its queue: the pool's shutdown waited for every pending cell, so a
     # SIGTERM'd sweep went on starting cells, one after another, until all had run. Ctrl-C signals the
     # terminal's whole process group (the cells run in their own sessions and get it from the sweep).
     spec = tmp_path / "long.yaml"
-    spec.write_text(LONG)
+    spec.write_text(tiny_spec("long", 400, axes="  seed: [0, 1, 2]\n"))
     out = tmp_path / "sweep"
     proc = subprocess.Popen([sys.executable, "-m", "optoenc.cli", "sweep", str(spec), "--out", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
