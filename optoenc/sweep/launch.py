@@ -20,6 +20,7 @@ import os
 import subprocess
 import sys
 import threading
+import types
 from pathlib import Path
 
 from ..errors import ConfigError
@@ -30,6 +31,7 @@ __all__ = ["STARTS", "resolve_start", "launch"]
 STARTS = ("auto", "forkserver", "subprocess")
 #: Imported once by the forkserver before it forks any cell.
 PRELOAD = ["optoenc.sweep.preload"]
+_MAIN_LOCK = threading.Lock()
 
 
 def _single_process(run) -> bool:
@@ -114,7 +116,16 @@ def launch(path: Path, threads: int, start: str):
         ctx.set_forkserver_preload(PRELOAD)  # no effect once the server runs: it keeps what it loaded
         proc = ctx.Process(target=_forked_cell, args=(str(path), int(threads), env, os.getcwd()),
                            name=f"optoenc cell {Path(path).name}", daemon=False)
-        proc.start()
+        with _MAIN_LOCK:
+            main = sys.modules["__main__"]
+            # multiprocessing re-runs the parent's main script (or module) in every child it starts, so a
+            # user's sweep script without an ``if __name__ == "__main__"`` guard would run again in each cell;
+            # a cell needs nothing from it (its target and arguments come from optoenc), so it is not told of one.
+            sys.modules["__main__"] = types.ModuleType("__main__")
+            try:
+                proc.start()
+            finally:
+                sys.modules["__main__"] = main
         return _Forked(proc)
     with open(Path(path) / "log.txt", "ab") as log:
         return subprocess.Popen(

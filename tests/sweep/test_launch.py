@@ -74,3 +74,26 @@ def test_the_cli_refuses_an_unknown_start_in_one_line(tmp_path, capsys, tiny_spe
     err = capsys.readouterr().err.strip()
     assert code == 2 and "\n" not in err and "--start" in err and "spawn" in err
     assert not (tmp_path / "s").exists()  # refused before anything ran or was written
+
+
+@pytest.mark.skipif("forkserver" not in __import__("multiprocessing").get_all_start_methods(), reason="no forkserver")
+def test_a_sweep_script_without_a_main_guard_runs_once(tmp_path, tiny_spec):
+    # multiprocessing re-runs the parent's main script in each child it starts: a user's script calling
+    # sweep.run at its top level would run again in every forked cell (and fail it: a sweep inside a cell).
+    import subprocess
+    import sys
+
+    spec = tmp_path / "tiny.yaml"
+    spec.write_text(tiny_spec(epochs=1, axes="  seed: [0, 1]\n"))
+    runs, out = tmp_path / "runs.txt", tmp_path / "out"
+    script = tmp_path / "user_script.py"
+    script.write_text(
+        "from optoenc import sweep\n"
+        f"open({str(runs)!r}, 'a').write('ran\\n')\n"
+        f"planned = sweep.plan(sweep.load_spec({str(spec)!r}), {str(out)!r})\n"
+        f"assert sweep.run(planned, {str(out)!r}, workers=2, threads=1, start='forkserver') == {{}}\n"
+    )
+    proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert runs.read_text() == "ran\n"
+    assert all((p / "summary.json").is_file() for p in (out / "cells").iterdir())
