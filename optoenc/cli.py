@@ -387,8 +387,9 @@ def cmd_sweep(args, extra) -> int:
         raise ConfigError("--only", ",".join(args.only), "matches no cell (see the names with --dry-run)")
     if args.order not in sweep.ORDERS:
         raise ConfigError("--order", args.order, f"one of {', '.join(sweep.ORDERS)}")
-    if args.start not in sweep.STARTS:
-        raise ConfigError("--start", args.start, f"one of {', '.join(sweep.STARTS)}")
+    from .sweep.launch import resolve_start
+
+    resolve_start(args.start)  # a bad --start is refused before anything runs (each cell's start: sweep.run)
     if args.dry_run or (args.order == "longest" and not args.collect):
         from .sweep.estimate import estimate
 

@@ -136,7 +136,7 @@ class _Running:
             proc.wait()
 
 
-def _run_local(p: PlannedCell, threads: int, running: _Running, start: str = "subprocess") -> tuple[bool, str]:
+def _run_local(p: PlannedCell, threads: int, running: _Running, start: str) -> tuple[bool, str]:
     """Run the cell in its own process (``start``: forkserver or subprocess) and wait for it; its time goes
     on the cell's clock, launch to exit."""
     with running.lock:
