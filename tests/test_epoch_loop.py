@@ -63,9 +63,13 @@ def test_batch_count_applies_lightnings_limit():
         # bfloat16 products (Lightning's autocast around the whole epoch): each mini-batch must multiply by the
         # weights as they are after the previous step, not by the bfloat16 copies autocast cached at the first.
         ("lens", "fcnn", ["dataset.train_size=1000", "trainer.precision=bf16-mixed"]),
+        # One torch thread: the epoch loop draws each mini-batch's noise ahead on a helper thread, from a
+        # generator of its own seeded as the batch loop reseeds the default one (a ragged last batch of 50).
+        ("lens", "fcnn", ["dataset.train_size=450", "trainer.threads=1"]),
+        ("diffuser", "logistic", ["dataset.train_size=1000", "trainer.threads=1", "trainer.precision=bf16-mixed"]),
     ],
 )
-def test_the_epoch_loop_trains_exactly_as_the_batch_loop(tmp_path, encoder, decoder, extra):
+def test_the_epoch_loop_trains_exactly_as_the_batch_loop(tmp_path, encoder, decoder, extra, restore_threads):
     # The same batches in the same order, the same per-batch seeds (so the same noise) and the same
     # Adam updates: the weights after two epochs are bit for bit the batch loop's, and so are every
     # metric of metrics.csv but the time. Exact equality: the same float operations on the same
@@ -87,6 +91,38 @@ def test_the_epoch_loop_trains_exactly_as_the_batch_loop(tmp_path, encoder, deco
     assert cb["last"]["epoch"] == 1
     assert rb == re_ and len(re_) == 2 and all(r["test_acc"] for r in re_)
     assert (sb["test_acc"], sb["best_epoch"]) == (se["test_acc"], se["best_epoch"]) and se["best_epoch"] is not None
+
+
+@pytest.fixture
+def restore_threads():
+    """torch's thread count as it was before the test (a run's trainer.threads sets it for the process)."""
+    n = torch.get_num_threads()
+    yield
+    torch.set_num_threads(n)
+
+
+def test_the_noise_is_drawn_ahead_only_with_one_torch_thread(restore_threads):
+    # The helper thread pays where a core is left free of torch's own threads; with two it shares one and
+    # the split elementwise products wait for it. Plugin noise (no sigma) is never drawn ahead.
+    from optoenc.training.epoch_loop import _draws_ahead
+
+    x, sigma = torch.rand(4, 1, 6, 8), torch.ones(4, 1, 1, 1)
+    torch.set_num_threads(1)
+    assert _draws_ahead(sigma, x) and not _draws_ahead(None, x)
+    torch.set_num_threads(2)
+    assert not _draws_ahead(sigma, x)
+
+
+def test_the_noise_drawn_ahead_is_the_reseeded_default_generators():
+    # What add_noise draws from the default generator reseeded for batch b, the helper draws from its own
+    # generator: the same numbers, batch by batch, a ragged last batch included.
+    from optoenc.training.epoch_loop import _noise_ahead
+
+    x = torch.rand(5, 1, 6, 8)
+    ahead = list(_noise_ahead(1000, [2, 2, 1], x))
+    for b, drawn in enumerate(ahead):
+        torch.default_generator.manual_seed(1000 + 7 * b)
+        assert torch.equal(drawn, torch.randn(drawn.shape)) and len(drawn) == [2, 2, 1][b]
 
 
 def test_auto_picks_the_epoch_loop_only_where_it_applies():
@@ -130,6 +166,11 @@ def test_the_noise_level_computed_once_is_the_per_batch_one_bit_for_bit(shape):
     a = add_noise(x[idx], 40.0, generator=torch.Generator().manual_seed(7))
     b = add_noise(x[idx], 40.0, generator=torch.Generator().manual_seed(7), sigma=whole.index_select(0, idx))
     assert torch.equal(a, b) and not torch.equal(a, x[idx])
+    # Draws handed in (the epoch loop's, drawn ahead) give the sums drawing them there gives.
+    n = torch.randn(x[idx].shape, generator=torch.Generator().manual_seed(7))
+    assert torch.equal(add_noise(x[idx], 40.0, sigma=whole.index_select(0, idx), noise=n), a)
+    with pytest.raises(ValueError, match="noise: shape"):
+        add_noise(x[idx], 40.0, noise=n[:-1])
 
 
 def test_an_encoder_with_its_own_noise_gets_no_precomputed_noise_level():

@@ -524,14 +524,15 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         return out
 
     def add_sensor_noise(self, clean: torch.Tensor, generator: torch.Generator | None = None,
-                         sigma: torch.Tensor | None = None) -> torch.Tensor:
+                         sigma: torch.Tensor | None = None, noise: torch.Tensor | None = None) -> torch.Tensor:
         """Sensor noise (zero-mean, after integration) and optional ADC quantisation.
 
         ``sigma``: the Gaussian noise's per-example standard deviation where the caller has it
-        (:meth:`noise_sigma` of the same clean embeddings; see :func:`~optoenc.encoders.imaging.add_noise`).
+        (:meth:`noise_sigma` of the same clean embeddings); ``noise``: its standard-normal draws where the
+        caller drew them (given only with ``sigma``); see :func:`~optoenc.encoders.imaging.add_noise`.
         """
         s = self.sensor
-        out = imaging.add_noise(clean, s.snr_db, s.noise, s.photons, s.read_noise, generator, sigma)
+        out = imaging.add_noise(clean, s.snr_db, s.noise, s.photons, s.read_noise, generator, sigma, noise)
         if s.adc_bits is not None:
             out = imaging.quantize(out, s.adc_bits)
         return out

@@ -492,6 +492,7 @@ def add_noise(
     read_noise: float = 0.0,
     generator: torch.Generator | None = None,
     sigma: torch.Tensor | None = None,
+    noise: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Zero-mean sensor noise, added after pixel integration.
 
@@ -508,11 +509,17 @@ def add_noise(
         sigma: the ``gaussian`` model's per-example standard deviation, ``snr_sigma(signal, snr_db)``, where
             the caller already has it (a fixed encoder's embeddings are the same every epoch); the same
             draws and the same sums as without it. Ignored by the other models.
+        noise: the ``gaussian`` model's standard-normal draws, shaped as ``signal``, where the caller drew
+            them already (what ``torch.randn`` with ``generator`` would give: the same sums); ``generator``
+            is then not used. Ignored by the other models.
     """
     if model == "none" or (model == "gaussian" and snr_db is None):
         return signal
     if model == "gaussian":
-        noise = torch.randn(signal.shape, generator=generator, dtype=signal.dtype, device=signal.device)
+        if noise is None:
+            noise = torch.randn(signal.shape, generator=generator, dtype=signal.dtype, device=signal.device)
+        elif noise.shape != signal.shape:
+            raise ValueError(f"noise: shape {tuple(noise.shape)}, must be the signal's {tuple(signal.shape)}")
         return signal + (snr_sigma(signal.detach(), snr_db) if sigma is None else sigma) * noise
     if model == "poisson":
         peak = signal.detach().flatten(1).amax(dim=1)

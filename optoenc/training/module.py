@@ -108,13 +108,14 @@ class EncoderClassifier(L.LightningModule):
         return self.decoder(self.embed(x, augment, draws))
 
     def embed(self, x: torch.Tensor, augment: bool = False, draws: torch.Tensor | None = None,
-              sigma: torch.Tensor | None = None) -> torch.Tensor:
+              sigma: torch.Tensor | None = None, noise: torch.Tensor | None = None) -> torch.Tensor:
         """Noisy sensor embeddings of a batch (what the decoder reads); ``sigma``: the noise's per-example
-        standard deviation, where known (:meth:`~optoenc.encoders.base.OpticalEncoder.noise_sigma`)."""
+        standard deviation, where known (:meth:`~optoenc.encoders.base.OpticalEncoder.noise_sigma`);
+        ``noise``: with it, its standard-normal draws, where already drawn."""
         clean = self.clean_embedding(x, augment, draws)
         if sigma is None:  # an encoder plugin's own add_sensor_noise need not take it
             return self.encoder.add_sensor_noise(clean)
-        return self.encoder.add_sensor_noise(clean, sigma=sigma)
+        return self.encoder.add_sensor_noise(clean, sigma=sigma, noise=noise)
 
     # --------------------------------------------------------------- steps
     def _step(self, batch, metric, stage: str, augment: bool, batch_idx: int = 0) -> torch.Tensor:
