@@ -134,7 +134,8 @@ def _parser() -> argparse.ArgumentParser:
     sw.add_argument("--workers", type=int, default=1, help="cells run at once (torch threads split between them)")
     sw.add_argument("--threads", type=int, metavar="N",
                     help="torch threads per worker (default: the machine's cores split between the workers; "
-                         "set it when other work, such as a second sweep, shares the cores)")
+                         "set it when other work, such as a second sweep, shares the cores); a cell whose spec sets "
+                         "trainer.threads runs with those and holds as many of the workers x N while it runs")
     sw.add_argument("--executor", default="local", help="local (processes), submitit-local or slurm (needs submitit)")
     sw.add_argument("--start", default="auto",
                     help="how a local cell's process starts: forkserver (forked from one process that has imported "
@@ -393,17 +394,22 @@ def cmd_sweep(args, extra) -> int:
     if args.dry_run or (args.order == "longest" and not args.collect):
         from .sweep.estimate import estimate
 
-        est = estimate(planned, threads=sweep.resolve_threads(args.workers, args.threads))
+        per_worker = sweep.resolve_threads(args.workers, args.threads)
+        est = estimate(planned, threads=per_worker)
         if args.order == "longest":
             planned = sweep.longest_first(planned, {k: e["seconds"] for k, e in est.items()})
     if args.dry_run:
-        secs = [est[p.cell.name]["seconds"] for p in planned if p.state != "finished"]
-        total = sum(s for s in secs if s == s)  # NaN: a cell that could not be estimated
+        budget = args.workers * per_worker
+        # A cell holds its share of the sweep's threads while it runs (one that asks for them all runs alone).
+        secs = [(est[p.cell.name]["seconds"], sweep.claim(sweep.cell_threads(p, per_worker), budget) / budget)
+                for p in planned if p.state != "finished"]
+        total = sum(s for s, _ in secs if s == s)  # NaN: a cell that could not be estimated
         for p in planned:
             e = est[p.cell.name]
             print(f"{p.state:11s} {e['seconds']:8.1f} s ({e['source']})  {p.cell.name}")
         todo = sum(p.state != "finished" for p in planned)
-        wall = f", about {total / 60 / args.workers:.1f} min with {args.workers} workers" if args.workers > 1 else ""
+        wall = sum(s * share for s, share in secs if s == s)
+        wall = f", about {wall / 60:.1f} min with {args.workers} workers" if args.workers > 1 else ""
         print(f"{len(planned)} cells, {todo} to run, estimated {total / 60:.1f} min on one worker{wall} -> {out}")
         return 0
     if not args.collect:

@@ -9,6 +9,7 @@ encoder and decoder on this machine now.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 from types import SimpleNamespace
@@ -35,7 +36,7 @@ def kind_of(run) -> tuple:
     """Cells of one kind cost the same per epoch."""
     return (run.names["encoder"], run.names["decoder"], tuple(run.sensor.embedding), tuple(run.augment),
             run.trainer.augment_draw, run.trainer.batch_size, run.trainer.test_every_epoch, str(run.fidelity),
-            run.sensor.sampling, run.trainer.precision)
+            run.sensor.sampling, run.trainer.precision, run.trainer.threads)
 
 
 def _sizes(run, cache: dict) -> tuple[int, int, int, tuple, torch.Tensor]:
@@ -149,13 +150,11 @@ def _measure(run, scene_shape, scenes: torch.Tensor | None = None, n_train: int 
 def estimate(planned, sweep_dir=None, threads: int | None = None) -> dict[str, dict[str, Any]]:
     """``{cell name: {"seconds": s, "source": "finished cells" | "measured"}}`` for every cell.
 
-    ``threads``: the torch threads a cell will have (the sweep's per-worker budget); steps are timed
-    with that many. Timing with more threads than the cores left free is no estimate: on a machine
-    whose cores are busy, two threads made a 16-ms step take 550 ms (threads waiting on each other).
+    ``threads``: the torch threads a cell will have (the sweep's per-worker budget; a cell whose spec
+    sets ``trainer.threads``, that many); steps are timed with that many. Timing with more threads than
+    the cores left free is no estimate: on a machine whose cores are busy, two threads made a 16-ms step
+    take 550 ms (threads waiting on each other).
     """
-    if threads is not None:
-        with torch_threads(threads):
-            return estimate(planned, sweep_dir)
     known: dict[tuple, float] = {}
     for p in planned:
         times = [float(m["time_s"]) for m in read_metrics(p.path / RUN_FILES["metrics"]) if m.get("time_s")]
@@ -179,7 +178,9 @@ def estimate(planned, sweep_dir=None, threads: int | None = None) -> dict[str, d
             out[p.cell.name] = {"seconds": round(left * known[k], 1), "source": "finished cells"}
             continue
         if k not in measured:
-            measured[k] = _measure(run, shape, sample, n_train)
+            n = run.trainer.threads or threads
+            with torch_threads(n) if n else contextlib.nullcontext():
+                measured[k] = _measure(run, shape, sample, n_train)
         m = measured[k]
         steps = math.ceil(n_train / run.trainer.batch_size)
         evals = n_val + (n_test if run.trainer.test_every_epoch else 0)

@@ -24,7 +24,7 @@ from .launch import STARTS, launch, resolve_start
 from .cells import add_clock, cell_dir, cell_state, compose_cell, config_differences
 from .spec import Cell, SweepSpec
 
-__all__ = ["PlannedCell", "plan", "run", "thread_budget", "resolve_threads", "EXECUTORS", "STARTS"]
+__all__ = ["PlannedCell", "plan", "run", "thread_budget", "resolve_threads", "cell_threads", "claim", "EXECUTORS", "STARTS"]
 
 #: Where cells run: in local processes, or through submitit.
 EXECUTORS = ("local", "submitit-local", "slurm")
@@ -100,6 +100,54 @@ def resolve_threads(workers: int, threads: int | None) -> int:
     return threads
 
 
+def cell_threads(p: PlannedCell, per_worker: int) -> int:
+    """The torch threads ``p`` runs with: its own ``trainer.threads`` where its spec sets one, else the
+    sweep's per-worker share (``per_worker``, :func:`resolve_threads`)."""
+    return int(p.run.trainer.threads or per_worker)
+
+
+def claim(threads: int, budget: int) -> int:
+    """How much of the sweep's ``budget`` of threads (workers x threads per worker) a cell of ``threads``
+    threads holds while it runs: its threads, at most the whole budget (a cell asking for more runs alone)."""
+    return max(1, min(int(threads), int(budget)))
+
+
+class _Budget:
+    """The sweep's torch threads, handed to cells in the order they were queued.
+
+    A cell waits until every cell queued before it has started and enough threads are free, so a cell
+    asking for the whole budget is not overtaken for ever by smaller ones; :meth:`close` (the sweep
+    stops) releases every waiting cell unstarted.
+    """
+
+    def __init__(self, total: int) -> None:
+        self.free = total
+        self.turn = 0  # the queue position whose turn it is
+        self.closed = False
+        self.cond = threading.Condition()
+
+    def take(self, position: int, n: int) -> bool:
+        """Wait for ``position``'s turn and ``n`` free threads, and hold them; False: the sweep stopped."""
+        with self.cond:
+            self.cond.wait_for(lambda: self.closed or (self.turn == position and self.free >= n))
+            if self.closed:
+                return False
+            self.free -= n
+            self.turn += 1
+            self.cond.notify_all()
+            return True
+
+    def give(self, n: int) -> None:
+        with self.cond:
+            self.free += n
+            self.cond.notify_all()
+
+    def close(self) -> None:
+        with self.cond:
+            self.closed = True
+            self.cond.notify_all()
+
+
 def _prepare(p: PlannedCell, restart_changed: bool) -> None:
     if p.state == "changed":
         if not restart_changed:
@@ -136,21 +184,29 @@ class _Running:
             proc.wait()
 
 
-def _run_local(p: PlannedCell, threads: int, running: _Running, start: str) -> tuple[bool, str]:
-    """Run the cell in its own process (``start``: forkserver or subprocess) and wait for it; its time goes
-    on the cell's clock, launch to exit."""
-    with running.lock:
-        if running.stopping:
-            return False, "not started: the sweep was interrupted"
-        launched = time.monotonic()
-        proc = launch(p.path, threads, start)
-        running.procs[p.cell.name] = proc
+def _run_local(p: PlannedCell, threads: int, running: _Running, start: str, budget: _Budget | None = None,
+               position: int = 0, held: int = 1) -> tuple[bool, str]:
+    """Run the cell in its own process (``start``: forkserver or subprocess) with ``threads`` torch threads and
+    wait for it; its time goes on the cell's clock, launch to exit. With ``budget``, it first waits for its
+    turn (``position``) and ``held`` of the sweep's threads, and gives them back when it ends."""
+    if budget is not None and not budget.take(position, held):
+        return False, "not started: the sweep was interrupted"
     try:
-        proc.wait()
-    finally:
-        add_clock(p.path, time.monotonic() - launched)
         with running.lock:
-            running.procs.pop(p.cell.name, None)
+            if running.stopping:
+                return False, "not started: the sweep was interrupted"
+            launched = time.monotonic()
+            proc = launch(p.path, threads, start)
+            running.procs[p.cell.name] = proc
+        try:
+            proc.wait()
+        finally:
+            add_clock(p.path, time.monotonic() - launched)
+            with running.lock:
+                running.procs.pop(p.cell.name, None)
+    finally:
+        if budget is not None:
+            budget.give(held)
     return proc.returncode == 0, _error(p)
 
 
@@ -195,6 +251,9 @@ def run(
     A failing cell never stops the others. ``workers`` cells run at once, each with ``threads`` torch
     threads (None: :func:`thread_budget`, the machine's cores split between the workers; give it where
     other work shares the machine, such as a second sweep, so that the threads do not outnumber the cores).
+    A cell whose spec sets ``trainer.threads`` runs with that many instead (:func:`cell_threads`) and, run
+    locally, holds as many of the sweep's ``workers x threads`` while it runs (:func:`claim`): cells start
+    in order, each once the threads it needs are free (a cell asking for them all runs alone).
     ``start``: how a local cell's process starts (:data:`~optoenc.sweep.launch.STARTS`; ``auto``: forked
     from a server that has imported what cells need, where it can be: :mod:`optoenc.sweep.launch`).
     """
@@ -217,14 +276,20 @@ def run(
 
     if executor == "local":
         running = _Running()
+        total = workers * threads
+        budget = _Budget(total)
         pool = ThreadPoolExecutor(max_workers=workers)
         try:
-            futures = {pool.submit(_run_local, p, threads, running, s): p for p, s in zip(todo, starts)}
+            futures = {}
+            for i, (p, s) in enumerate(zip(todo, starts)):
+                n = cell_threads(p, threads)
+                futures[pool.submit(_run_local, p, n, running, s, budget, i, claim(n, total))] = p
             for fut in as_completed(futures):
                 ok, err = fut.result()
                 done(futures[fut], ok, err)
         except BaseException as err:  # SIGINT / SIGTERM (Interrupted, KeyboardInterrupt): stop, not drain the queue
             pool.shutdown(wait=False, cancel_futures=True)
+            budget.close()  # cells waiting for threads start no more (the cancelled ones never take their turn)
             running.stop(getattr(err, "signum", signal.SIGINT if isinstance(err, KeyboardInterrupt) else signal.SIGTERM))
             raise
         pool.shutdown()
@@ -232,7 +297,12 @@ def run(
     from .cell import run_cell_clocked
 
     ex = _submitit_executor(executor, Path(sweep_dir), threads, slurm)
-    jobs = [(p, ex.submit(run_cell_clocked, str(p.path), threads)) for p in todo]
+    jobs = []
+    for p in todo:
+        n = cell_threads(p, threads)
+        if executor == "slurm":
+            ex.update_parameters(cpus_per_task=n)  # each job asks for its cell's threads
+        jobs.append((p, ex.submit(run_cell_clocked, str(p.path), n)))
     for p, job in jobs:
         try:
             job.result()
