@@ -9,8 +9,10 @@ in one sweep each with the current code (resumed over sittings) (``table{1,3}_ce
 tables) and the estimates are ``table{1,3}_estimate_2workers.txt``. ``epyc`` reads docs/results/epyc/: the AMD
 machines of 2026-11-24/25, whose cells were measured over several sittings (the newest file naming a cell
 wins; each file's command is in docs/results/README.md). Estimates come from ``optoenc sweep SPEC --dry-run
---workers 2``. A measured cell ran two at once, one thread each, as the tables are run; the estimate times
-steps on a quiet machine, so where both exist their ratio says how far the estimate is from a real sweep.
+--workers 2``. A measured cell ran two at once, one thread each, as the tables are run, or alone on both threads
+where its spec sets ``trainer.threads: 2`` (the fixed encoders' 24x32 FCNN cells, since session 27): the machine
+time adds each cell's clock times its share of the machine (:func:`share`). The estimate times steps on a quiet
+machine, so where both exist their ratio says how far the estimate is from a real sweep.
 """
 
 from __future__ import annotations
@@ -110,19 +112,39 @@ def tally(machine: str = "xeon") -> tuple[list[dict], dict]:
                 t["estimated"] += 1
                 t["estimated_s"] += e
             rows.append({"table": table, "cell": _spec_name(cell, table), "seconds": round(clock, 1), "estimate_s": e,
-                         "source": src})
+                         "source": src, "share": share(cell)})
     return rows, totals
+
+
+#: The sweeps' workers and threads per worker on the 2-core machines (``--workers 2``: one thread each).
+WORKERS, THREADS = 2, 1
+
+
+def share(cell: str) -> float:
+    """The part of the machine the cell held while it ran (or, estimated, would hold): one worker's, or, where it
+    ran with its own ``trainer.threads`` (its name says ``threads=N``), that many of the sweep's threads
+    (``optoenc.sweep.claim``; two: the whole machine). Named as measured: a cell measured before its spec gave it
+    threads ran as one worker."""
+    from optoenc.sweep import claim
+
+    m = re.search(r"(?:^|,)threads=(\d+)(?:,|$)", cell)
+    budget = WORKERS * THREADS
+    return claim(int(m.group(1)) if m else THREADS, budget) / budget
 
 
 #: What the specs' ``trainer.precision=auto`` adds to a cell's name. The fixed encoders' 24x32 FCNN cells gained it
 #: on 2026-11-25 (session 22); on a CPU without native bfloat16 (the AMD machines) ``auto`` is ``32-true``, so the
 #: float32 cells measured there before, named without it, are the very runs the specs now ask for on them.
 _AUTO = ",precision=auto"
+#: What the specs' ``trainer.threads: 2`` adds to the same cells' names (session 27); their earlier one-thread runs
+#: are named without it (and counted as one worker's share: :func:`share`).
+_THREADS = ",threads=2"
 
 
 def _spec_name(cell: str, table: str) -> str:
-    """``cell`` as the spec now names it: a name from before the fixed cells gained ``precision=auto`` mapped to
-    the spec's cell that differs from it only by that (the AMD machines' files); any other name unchanged."""
+    """``cell`` as the spec now names it: a name from before the fixed cells gained ``precision=auto`` or
+    ``threads=2`` mapped to the spec's cell that differs from it only by those (the AMD machines' files); any
+    other name unchanged."""
     return cell if cell in _spec_names(table) else _by_plain(table).get(cell, cell)
 
 
@@ -135,8 +157,12 @@ def _spec_names(table: str) -> frozenset[str]:
 
 @functools.lru_cache(maxsize=None)
 def _by_plain(table: str) -> dict[str, str]:
-    """The spec's cells by their names without ``precision=auto``."""
-    return {name.replace(_AUTO, ""): name for name in _spec_names(table)}
+    """The spec's cells by their names without ``threads=2``, and without both it and ``precision=auto``."""
+    out = {}
+    for name in _spec_names(table):
+        plain = name.replace(_THREADS, "")
+        out[plain] = out[plain.replace(_AUTO, "")] = name
+    return out
 
 
 # The issue's per-cell goals, seconds: a fixed-encoder cell (cached embeddings) and a learned one.
@@ -170,6 +196,7 @@ def main() -> None:
     args = p.parse_args()
     rows, totals = tally(args.machine)
     all_s = 0.0
+    machine_s = sum(r["seconds"] * r["share"] for r in rows)
     for table, t in totals.items():
         s = t["measured_s"] + t["twin_s"] + t["estimated_s"]
         all_s += s
@@ -178,8 +205,10 @@ def main() -> None:
               f"{ratio:.2f}x their estimate), a measured twin's clock {t['twin']} ({t['twin_s'] / 60:.1f} min), "
               f"estimated {t['estimated']} ({t['estimated_s'] / 60:.1f} min): "
               f"{s / 60:.1f} min of cell time")
-    print(f"Tables 1 and 3: {all_s / 60:.1f} min of cell time, about {all_s / 7200:.2f} h of machine time with two "
-          f"workers (goal: 4 h)")
+    alone = [r for r in rows if r["share"] == 1.0]
+    print(f"Tables 1 and 3: {all_s / 60:.1f} min of cell time, about {machine_s / 3600:.2f} h of machine time with two "
+          f"workers (each cell's time x its share of the machine: half, or all of it for the {len(alone)} cells "
+          f"whose spec gives them both threads; goal: 4 h)")
     for line in per_cell_goals(rows):
         print(line)
     if args.csv:
