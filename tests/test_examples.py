@@ -87,8 +87,8 @@ def test_operator_order_example_compares_the_same_operator():
 
 @pytest.mark.parametrize("machine", ["xeon", "epyc"])
 def test_cost_tally_covers_every_cell_of_tables_1_and_3_once(tmp_path, machine):
-    # The tally adds one kind of machine's measured run clocks and the sweep's estimate for the rest; its list of
-    # cells is the estimate files', which must be the specs' own (a spec changed since would leave them stale).
+    # The tally adds one kind of machine's measured run clocks, a measured twin's (another seed) or the sweep's
+    # estimate for the rest; its list of cells is the specs' own, every one of them once.
     import csv
 
     from optoenc import sweep
