@@ -399,9 +399,8 @@ def cmd_sweep(args, extra) -> int:
         if args.order == "longest":
             planned = sweep.longest_first(planned, {k: e["seconds"] for k, e in est.items()})
     if args.dry_run:
-        budget = args.workers * per_worker
         # A cell holds its share of the sweep's threads while it runs (one that asks for them all runs alone).
-        secs = [(est[p.cell.name]["seconds"], sweep.claim(sweep.cell_threads(p, per_worker), budget) / budget)
+        secs = [(est[p.cell.name]["seconds"], sweep.machine_share(p, args.workers, per_worker))
                 for p in planned if p.state != "finished"]
         total = sum(s for s, _ in secs if s == s)  # NaN: a cell that could not be estimated
         for p in planned:

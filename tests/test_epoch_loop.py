@@ -119,9 +119,12 @@ def test_the_noise_drawn_ahead_is_the_reseeded_default_generators():
     from optoenc.training.epoch_loop import _noise_ahead
 
     x = torch.rand(5, 1, 6, 8)
-    ahead = list(_noise_ahead(1000, [2, 2, 1], x))
+    from optoenc.training.module import train_batch_seed
+
+    seeds = [train_batch_seed(1000, 3, b) for b in range(3)]
+    ahead = list(_noise_ahead(seeds, [2, 2, 1], x))
     for b, drawn in enumerate(ahead):
-        torch.default_generator.manual_seed(1000 + 7 * b)
+        torch.default_generator.manual_seed(train_batch_seed(1000, 3, b))
         assert torch.equal(drawn, torch.randn(drawn.shape)) and len(drawn) == [2, 2, 1][b]
 
 

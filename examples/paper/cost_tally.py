@@ -165,9 +165,7 @@ def _spec_name(cell: str, table: str) -> str:
 
 @functools.lru_cache(maxsize=None)
 def _spec_names(table: str) -> frozenset[str]:
-    from optoenc import sweep
-
-    return frozenset(c.name for c in sweep.load_spec(Path(__file__).parent / f"{table}.yaml").expand())
+    return frozenset(_spec_order(table))
 
 
 @functools.lru_cache(maxsize=None)

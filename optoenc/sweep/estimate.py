@@ -22,6 +22,7 @@ from .. import hardware
 from ..errors import OptoencError
 from ..limits import torch_threads
 from ..training.rundir import RUN_FILES
+from .runner import cell_threads
 
 __all__ = ["kind_of", "estimate"]
 
@@ -178,7 +179,7 @@ def estimate(planned, sweep_dir=None, threads: int | None = None) -> dict[str, d
             out[p.cell.name] = {"seconds": round(left * known[k], 1), "source": "finished cells"}
             continue
         if k not in measured:
-            n = run.trainer.threads or threads
+            n = cell_threads(p, threads)
             with torch_threads(n) if n else contextlib.nullcontext():
                 measured[k] = _measure(run, shape, sample, n_train)
         m = measured[k]

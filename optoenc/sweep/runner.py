@@ -24,7 +24,8 @@ from .launch import STARTS, launch, resolve_start
 from .cells import add_clock, cell_dir, cell_state, compose_cell, config_differences
 from .spec import Cell, SweepSpec
 
-__all__ = ["PlannedCell", "plan", "run", "thread_budget", "resolve_threads", "cell_threads", "claim", "EXECUTORS", "STARTS"]
+__all__ = ["PlannedCell", "plan", "run", "thread_budget", "resolve_threads", "cell_threads", "claim",
+           "machine_share", "EXECUTORS", "STARTS"]
 
 #: Where cells run: in local processes, or through submitit.
 EXECUTORS = ("local", "submitit-local", "slurm")
@@ -100,16 +101,24 @@ def resolve_threads(workers: int, threads: int | None) -> int:
     return threads
 
 
-def cell_threads(p: PlannedCell, per_worker: int) -> int:
+def cell_threads(p: PlannedCell, per_worker: int | None) -> int | None:
     """The torch threads ``p`` runs with: its own ``trainer.threads`` where its spec sets one, else the
-    sweep's per-worker share (``per_worker``, :func:`resolve_threads`)."""
-    return int(p.run.trainer.threads or per_worker)
+    sweep's per-worker share (``per_worker``, :func:`resolve_threads`; None: neither, torch's default)."""
+    n = p.run.trainer.threads or per_worker
+    return None if n is None else int(n)
 
 
 def claim(threads: int, budget: int) -> int:
     """How much of the sweep's ``budget`` of threads (workers x threads per worker) a cell of ``threads``
     threads holds while it runs: its threads, at most the whole budget (a cell asking for more runs alone)."""
     return max(1, min(int(threads), int(budget)))
+
+
+def machine_share(p: PlannedCell, workers: int, per_worker: int) -> float:
+    """The part of the sweep's threads ``p`` holds while it runs locally (:func:`claim` of its threads, over
+    ``workers x per_worker``): ``1 / workers`` for a cell of the per-worker threads, 1 for one that runs alone."""
+    budget = workers * per_worker
+    return claim(cell_threads(p, per_worker), budget) / budget
 
 
 class _Budget:
@@ -184,12 +193,12 @@ class _Running:
             proc.wait()
 
 
-def _run_local(p: PlannedCell, threads: int, running: _Running, start: str, budget: _Budget | None = None,
-               position: int = 0, held: int = 1) -> tuple[bool, str]:
+def _run_local(p: PlannedCell, threads: int, running: _Running, start: str, budget: _Budget, position: int,
+               held: int) -> tuple[bool, str]:
     """Run the cell in its own process (``start``: forkserver or subprocess) with ``threads`` torch threads and
-    wait for it; its time goes on the cell's clock, launch to exit. With ``budget``, it first waits for its
-    turn (``position``) and ``held`` of the sweep's threads, and gives them back when it ends."""
-    if budget is not None and not budget.take(position, held):
+    wait for it; its time goes on the cell's clock, launch to exit. It first waits for its turn (``position``)
+    and ``held`` of the sweep's threads (``budget``), and gives them back when it ends."""
+    if not budget.take(position, held):
         return False, "not started: the sweep was interrupted"
     try:
         with running.lock:
@@ -205,8 +214,7 @@ def _run_local(p: PlannedCell, threads: int, running: _Running, start: str, budg
             with running.lock:
                 running.procs.pop(p.cell.name, None)
     finally:
-        if budget is not None:
-            budget.give(held)
+        budget.give(held)
     return proc.returncode == 0, _error(p)
 
 

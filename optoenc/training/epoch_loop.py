@@ -80,21 +80,21 @@ def train_epoch(module, batch, batch_size: int, limit: int | float = 1.0) -> dic
     first non-finite loss ``{"loss": that loss, "batch_idx": its batch}`` (the run's
     :class:`~optoenc.training.callbacks.FiniteLoss` stops it there).
     """
-    from .module import SEED_STRIDE, _reseed
+    from .module import _reseed, train_batch_seed
 
     x, y, order = batch[0], batch[1], batch[-1]
     opt = module.optimizers()
     opt = getattr(opt, "optimizer", opt)  # the torch optimiser itself: no per-step Lightning hooks
-    base = module.seed + SEED_STRIDE * (module.current_epoch + 1)
     sigma = _noise_sigma(module, x)
     nb = batch_count(len(order), batch_size, limit)
+    seeds = [train_batch_seed(module.seed, module.current_epoch, b) for b in range(nb)]
     sizes = [min(batch_size, len(order) - b * batch_size) for b in range(nb)]
-    draws = _noise_ahead(base, sizes, x) if _draws_ahead(sigma, x) else None
+    draws = _noise_ahead(seeds, sizes, x) if _draws_ahead(sigma, x) else None
     params = [p for group in opt.param_groups for p in group["params"]]
     total, count, count_steps = 0.0, 0, 0
     predicted, labels = [], []
     for b in range(nb):
-        _reseed(base + 7 * b)  # the per-batch loop's on_train_batch_start
+        _reseed(seeds[b])  # the per-batch loop's on_train_batch_start
         idx = order[b * batch_size : (b + 1) * batch_size]
         xb, yb = x.index_select(0, idx), y.index_select(0, idx)  # x[idx]'s values, gathered row by row: 2x faster
         sb = None if sigma is None else sigma.index_select(0, idx)
@@ -132,11 +132,11 @@ def _draws_ahead(sigma: torch.Tensor | None, x: torch.Tensor) -> bool:
     return sigma is not None and x.device.type == "cpu" and torch.get_num_threads() == 1
 
 
-def _noise_ahead(base: int, sizes: list[int], x: torch.Tensor):
+def _noise_ahead(seeds: list[int], sizes: list[int], x: torch.Tensor):
     """The mini-batches' standard-normal noise draws, in turn, each drawn on a helper thread one batch ahead.
 
-    Batch ``b``'s draws are ``torch.randn`` of its shape from a generator seeded ``base + 7 b``: what the
-    default generator, reseeded so for the batch, draws in :func:`~optoenc.encoders.imaging.add_noise`
+    Batch ``b``'s draws are ``torch.randn`` of its shape (``sizes[b]`` examples) from a generator seeded
+    ``seeds[b]``: what the default generator, reseeded so for the batch, draws in :func:`~optoenc.encoders.imaging.add_noise`
     (the same numbers). Drawing them is a serial Mersenne-twister loop, an eighth of a 24 x 32 FCNN step
     on one thread; the helper thread draws the next batch's while this one trains (the draw releases
     Python's lock), on a core the step's own threads leave free.
@@ -146,7 +146,7 @@ def _noise_ahead(base: int, sizes: list[int], x: torch.Tensor):
     shape, dtype = tuple(x.shape[1:]), x.dtype
 
     def draw(b: int) -> torch.Tensor:
-        return torch.randn((sizes[b], *shape), generator=torch.Generator().manual_seed(base + 7 * b), dtype=dtype)
+        return torch.randn((sizes[b], *shape), generator=torch.Generator().manual_seed(seeds[b]), dtype=dtype)
 
     with ThreadPoolExecutor(1, thread_name_prefix="optoenc-noise") as pool:
         ahead = pool.submit(draw, 0) if sizes else None

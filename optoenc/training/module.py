@@ -14,11 +14,17 @@ from torchmetrics.classification import MulticlassAccuracy
 from ..decoders import Decoder
 from ..encoders.base import OpticalEncoder
 
-__all__ = ["EncoderClassifier", "SEED_STRIDE"]
+__all__ = ["EncoderClassifier", "SEED_STRIDE", "train_batch_seed"]
 
 #: Every epoch (and every evaluation pass) starts from a seed derived from the
 #: run seed, so a resumed run draws exactly what an uninterrupted one would.
 SEED_STRIDE = 1_000_003
+
+
+def train_batch_seed(seed: int, epoch: int, batch_idx: int) -> int:
+    """The seed training batch ``batch_idx`` of ``epoch`` draws its noise and augmentations from (one rule for the
+    per-batch loop, the epoch loop and its noise drawn ahead: the same draws in all three)."""
+    return seed + SEED_STRIDE * (epoch + 1) + 7 * batch_idx
 
 
 class EncoderClassifier(L.LightningModule):
@@ -185,7 +191,7 @@ class EncoderClassifier(L.LightningModule):
     # (run seed, stage, epoch, batch): a resumed run draws exactly what an
     # uninterrupted one would, whatever else consumed random numbers.
     def on_train_batch_start(self, batch, batch_idx) -> None:
-        _reseed(self.seed + SEED_STRIDE * (self.current_epoch + 1) + 7 * batch_idx)
+        _reseed(train_batch_seed(self.seed, self.current_epoch, batch_idx))
 
     def on_validation_batch_start(self, batch, batch_idx, dataloader_idx: int = 0) -> None:
         _reseed(self.seed + 17 + 7 * batch_idx)

@@ -103,10 +103,14 @@ def test_a_cell_that_sets_its_threads_gets_them_and_holds_its_share_of_the_sweep
     assert starts["b"][1] == {"a"}  # the one-thread cells still run two at once
 
 
-def test_a_cell_asking_for_more_than_the_sweep_has_runs_alone_with_what_it_asked():
+def test_a_cell_holds_its_threads_at_most_the_whole_budget_and_keeps_the_threads_it_asked_for():
     assert runner.claim(2, 2) == 2 and runner.claim(8, 2) == 2 and runner.claim(1, 4) == 1
     assert runner.cell_threads(_planned("x", Path("x"), threads=8), 1) == 8
     assert runner.cell_threads(_planned("x", Path("x")), 3) == 3
+    assert runner.cell_threads(_planned("x", Path("x")), None) is None  # neither: torch's default
+    # Its share of the machine (the dry run's N-worker time): a per-worker cell 1/workers, an 8-thread one all.
+    assert runner.machine_share(_planned("x", Path("x")), 2, 1) == 0.5
+    assert runner.machine_share(_planned("x", Path("x"), threads=8), 2, 1) == 1.0
 
 
 def test_a_stopping_sweep_releases_the_cells_waiting_for_threads():
