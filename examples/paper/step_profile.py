@@ -26,6 +26,7 @@ import torch
 from omegaconf import OmegaConf
 
 from optoenc.config import compose
+from optoenc.training.allocator import keep_freed_memory
 from optoenc.training.run import fit
 
 
@@ -49,7 +50,11 @@ class _StepClock(L.Callback):
 
 def step_seconds(cell: Path, overrides=(), steps: int = 50, warm: int = 10, threads: int = 1,
                  profiler: cProfile.Profile | None = None) -> float:
-    """Mean seconds of training batches ``warm .. warm + steps`` of ``cell``'s run (its own data)."""
+    """Mean seconds of training batches ``warm .. warm + steps`` of ``cell``'s run (its own data).
+
+    The process keeps freed memory as a sweep cell's does (:func:`~optoenc.training.allocator.keep_freed_memory`).
+    """
+    keep_freed_memory()
     torch.set_num_threads(threads)
     run = compose([OmegaConf.load(Path(cell) / "config.yaml")],
                   ["trainer.max_epochs=1", f"trainer.limit_train_batches={warm + steps}",

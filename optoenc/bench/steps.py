@@ -18,6 +18,9 @@ names the pair (:data:`AGAINST`):
 * ``rows``: :attr:`OpticalEncoder.row_major_operators` off (the sorted build's
   operator copied into the ``(C, a, b, h, w)`` layout) -> on (held and applied
   canvas row by canvas row).
+* ``matrix_units``: :attr:`OpticalEncoder.matrix_unit_operators` off (a bfloat16
+  operator's banded build) -> on (dense products for the CPU's matrix units, AMX;
+  the same step where the operator is not bfloat16 or the CPU has none).
 
 The allocator setting (:mod:`optoenc.training.allocator`) cannot be compared
 in one process: glibc reuses the free chunks a process has kept whatever its
@@ -58,6 +61,10 @@ def _set_rows(enc, on: bool) -> None:
     enc.row_major_operators = on
 
 
+def _set_matrix_units(enc, on: bool) -> None:
+    enc.matrix_unit_operators = on
+
+
 def _set_propagation(enc, on: bool) -> None:
     enc.knobs = enc.knobs.replace(propagation="separable" if on else "blas")
     enc.invalidate_psf()
@@ -70,6 +77,7 @@ AGAINST = {
     "propagation": ("2-D BLAS PSF", "axis-by-axis PSF", _set_propagation),
     "sorted": ("consecutive band rows", "sorted band rows", _set_sorted),
     "rows": ("(C, a, b, h, w) operator", "canvas-row operator", _set_rows),
+    "matrix_units": ("banded bfloat16 build", "matrix-unit build", _set_matrix_units),
 }
 
 

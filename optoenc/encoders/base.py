@@ -21,7 +21,7 @@ from typing import Any, ClassVar, Mapping
 import torch
 from torch import nn
 
-from .. import limits
+from .. import hardware, limits
 from ..errors import ConfigError, DataError
 from ..fidelity.knobs import FidelityConfig
 from ..settings import Documented, Settings, setting
@@ -134,6 +134,11 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
     #: (:func:`optoenc.encoders.imaging.scene_operator`, ``row_major``; exact); False: copied into the
     #: contiguous ``(C, a, b, h, w)`` layout (the reference of ``optoenc bench steps --against rows``).
     row_major_operators: bool = True
+    #: A bfloat16 operator on a CPU whose matrix units multiply bfloat16 (AMX) is built by dense products
+    #: in the layout one product applies (:func:`optoenc.encoders.imaging.scene_operator`, ``matrix_units``;
+    #: the same sums up to their order); False: the banded build (the reference of ``optoenc bench steps
+    #: --against matrix_units``).
+    matrix_unit_operators: bool = True
 
     def lr_scales(self) -> dict[str, float]:
         """Learning rate of named parameters relative to ``trainer.encoder_lr`` (others: 1).
@@ -322,6 +327,7 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
             stale = [k for k in self._op_cache if k[0] == "corr"]
             for k in stale[: max(0, len(stale) - _MAX_GEOMETRIES + 1)]:
                 del self._op_cache[k]
+                self._op_cache.pop(("dense",) + k[1:], None)
             ry, rx = ry.to(device, self.operator_dtype), rx.to(device, self.operator_dtype)
             # Where each flattened row's nonzero entries lie: the banded build's plan (imaging.scene_operator).
             spans = tuple(banded.row_spans(r.reshape(-1, r.shape[-1])) for r in (ry, rx))
@@ -329,6 +335,19 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
             # without a copy, also cut to a region's rows (imaging.scene_operator).
             ry = ry.transpose(0, 1).contiguous().transpose(0, 1)
             self._op_cache[key] = (ry, rx, spans)
+        return self._op_cache[key]
+
+    def _uses_matrix_units(self, device) -> bool:
+        """Whether :meth:`operator` builds by dense products for the CPU's matrix units (:attr:`matrix_unit_operators`)."""
+        return (self.matrix_unit_operators and self.operator_dtype == torch.bfloat16 and torch.device(device).type == "cpu"
+                and hardware.matrix_units())
+
+    def _dense_factors(self, scene_shape: tuple[int, int], height_px: float, device):
+        """:func:`imaging.dense_factors` of the whole scene's correlation tensors, cached beside them."""
+        ry, rx, _ = self._geometry_factors(scene_shape, height_px, device)
+        key = ("dense", scene_shape, round(height_px, 9), self.operator_dtype, str(device), self.sensor.sampling)
+        if key not in self._op_cache:
+            self._op_cache[key] = imaging.dense_factors(ry, rx)
         return self._op_cache[key]
 
     @staticmethod
@@ -364,17 +383,21 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
                 changes).
         """
         psf = self.psf()
-        ry, rx, spans = self._geometry_factors(tuple(scene_shape), self.object_height_px(height), psf.device)
+        height_px = self.object_height_px(height)
+        ry, rx, spans = self._geometry_factors(tuple(scene_shape), height_px, psf.device)
         spans = self._region_spans(spans, tuple(scene_shape), region) if self.banded_operators else False
+        units = self._uses_matrix_units(psf.device)
         if region is not None:
             r0, r1, c0, c1 = region
             return imaging.scene_operator(psf.to(self.operator_dtype), ry[:, r0:r1], rx[:, c0:c1], spans, self.sorted_band_rows,
-                                          self.row_major_operators)
+                                          self.row_major_operators, units)
         key = ("op", tuple(scene_shape), height, self._state_key())
         cached = self._op_cache.get("op")
         if cached is not None and cached[0] == key:
             return cached[1]
-        op = imaging.scene_operator(psf.to(self.operator_dtype), ry, rx, spans, self.sorted_band_rows, self.row_major_operators)
+        factors = self._dense_factors(tuple(scene_shape), height_px, psf.device) if units else None
+        op = imaging.scene_operator(psf.to(self.operator_dtype), ry, rx, spans, self.sorted_band_rows, self.row_major_operators,
+                                    units, factors)
         self._op_cache["op"] = (key, op)
         return op
 
@@ -490,11 +513,22 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         region = (r0, r0 + h, c0, c0 + w)
         x = _as_intensity(windows)
         self._check_height(height)
-        cut = self.support_regions and self.auto_method(len(x), (H, W)) == "operator"
-        if cut and self._cheaper_region(len(x), (H, W), height, region) == region:
+        by_operator = self.auto_method(len(x), (H, W)) == "operator"
+        if by_operator and self.support_regions and self._cheaper_region(len(x), (H, W), height, region) == region:
             with torch.autocast(x.device.type, enabled=False):  # the optics keep their own precisions
                 op = self.operator((H, W), height, region)
                 out = imaging.apply_operator(op, x.to(self.optics_dtype).to(op.dtype), self.banded_operators).to(self.optics_dtype)
+            return out.to(x.dtype)
+        if by_operator and self.support_regions:
+            # The whole scene's operator: the window, which holds every nonzero pixel, was not a cheaper region, so no
+            # part of it is looked for (measure's support_region: a scan of the whole canvas). The scenes are laid out
+            # in the operator's precision at once (a whole-canvas float copy and its conversion: ~4 ms of Table 3's
+            # 24x32 shift step on one core).
+            with torch.autocast(x.device.type, enabled=False):
+                op = self.operator((H, W), height)
+                full = x.new_zeros(*x.shape[:2], H, W, dtype=op.dtype)
+                full[..., r0 : r0 + h, c0 : c0 + w] = x.to(self.optics_dtype)
+                out = imaging.apply_operator(op, full, self.banded_operators).to(self.optics_dtype)
             return out.to(x.dtype)
         full = torch.nn.functional.pad(x, (c0, W - c0 - w, r0, H - r0 - h))
         return self.measure(full, height)

@@ -47,6 +47,7 @@ __all__ = [
     "subcell_psf",
     "correlation_tensor",
     "scene_operator",
+    "dense_factors",
     "apply_operator",
     "add_noise",
     "snr_sigma",
@@ -262,7 +263,7 @@ _MIN_BANDED_MACS = 20_000_000
 
 
 def scene_operator(psf: torch.Tensor, ry: torch.Tensor, rx: torch.Tensor, spans=None, sort_rows: bool = True,
-                   row_major: bool = True) -> torch.Tensor:
+                   row_major: bool = True, matrix_units: bool = False, factors=None) -> torch.Tensor:
     """The linear map from scene pixels to embedding pixels for a given PSF.
 
     Args:
@@ -278,6 +279,10 @@ def scene_operator(psf: torch.Tensor, ry: torch.Tensor, rx: torch.Tensor, spans=
             False: consecutive rows only (a reference).
         row_major: where the rows are sorted, return the operator held canvas row by canvas row (below);
             False: a contiguous ``(C, a, b, h, w)`` tensor always (a reference).
+        matrix_units: a bfloat16 PSF on a CPU whose matrix units multiply bfloat16 (AMX,
+            :func:`optoenc.hardware.matrix_units`, checked by the caller): the dense products, in the layout
+            that one product applies (:func:`_matrix_unit_operator`), whatever ``spans`` says.
+        factors: ``dense_factors(ry, rx)`` where the caller keeps them (the ``matrix_units`` build).
 
     Returns:
         ``(C, a, b, h, w)`` operator ``A`` with
@@ -288,6 +293,8 @@ def scene_operator(psf: torch.Tensor, ry: torch.Tensor, rx: torch.Tensor, spans=
         (``ry.transpose(0, 1)`` contiguous) spares that build a copy of it.
     """
     C, (a, h, Hp), (b, w, Wp) = psf.shape[0], ry.shape, rx.shape
+    if matrix_units and psf.dtype == torch.bfloat16 and psf.device.type == "cpu":
+        return _matrix_unit_operator(psf, dense_factors(ry, rx) if factors is None else factors, (h, w))
     rx2 = rx.reshape(b * w, Wp)
     rows_first = a * h * Wp * (Hp + b * w)  # the dense products' multiply-adds, per PSF channel
     columns_first = Hp * b * w * (Wp + a * h)
@@ -347,6 +354,83 @@ def _banded_operator(psf, ry, rx2, py, px, bw, row_major: bool) -> torch.Tensor:
     return m.reshape(a, h, C, b, w).permute(2, 0, 3, 1, 4).contiguous()
 
 
+def dense_factors(ry: torch.Tensor, rx: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    """``(ry (a h, Hp), its transpose, rx (b w, Wp), its transpose)``, each contiguous: the matrix-unit build's factors."""
+    (a, h, Hp), (b, w, Wp) = ry.shape, rx.shape
+    ry2, rx2 = ry.reshape(a * h, Hp).contiguous(), rx.reshape(b * w, Wp).contiguous()
+    return ry2, ry2.T.contiguous(), rx2, rx2.T.contiguous()
+
+
+class _MatrixUnitOperator(torch.autograd.Function):
+    """``(C, Hp, Wp)`` PSF -> ``(C, b, a h, w)`` operator by dense products; the factors are constants."""
+
+    @staticmethod
+    def forward(ctx, psf, ry2, ry2_t, rx2, rx2_t, w):
+        (C, Hp, Wp), ah, b = psf.shape, ry2.shape[0], rx2.shape[0] // w
+        # (C Hp, Wp) x (Wp, b w), then (C, b, Hp, w) contiguous: each product below reads its factor whole
+        u = (psf.reshape(C * Hp, Wp) @ rx2_t).view(C, Hp, b, w).transpose(1, 2).contiguous()
+        out = psf.new_empty(C, b, ah, w)
+        for c in range(C):
+            for j in range(b):
+                torch.mm(ry2, u[c, j], out=out[c, j])
+        ctx.save_for_backward(ry2_t, rx2)
+        ctx.dims = (C, Hp, Wp, b, w)
+        return out
+
+    @staticmethod
+    def backward(ctx, grad):
+        ry2_t, rx2 = ctx.saved_tensors
+        C, Hp, Wp, b, w = ctx.dims
+        grad = grad.contiguous()
+        gu = grad.new_empty(C, b, Hp, w)
+        for c in range(C):
+            for j in range(b):
+                torch.mm(ry2_t, grad[c, j], out=gu[c, j])
+        gpsf = gu.transpose(1, 2).reshape(C * Hp, b * w) @ rx2
+        return gpsf.view(C, Hp, Wp), None, None, None, None, None
+
+
+def _matrix_unit_operator(psf: torch.Tensor, factors, hw: tuple[int, int]) -> torch.Tensor:
+    """:func:`scene_operator` by dense bfloat16 products, as a CPU's matrix units (AMX) run them.
+
+    A matrix unit multiplies one large bfloat16 product ~10 times faster per multiply-add than the banded
+    build's hundreds of small ones (on the development machine's AMX, one core: ~550 against ~50 GMAC/s),
+    so the dense products, 15x the banded ones' multiply-adds on Table 3's 24x32 canvas, take less time.
+    Columns first, ``u = psf rx^T``, then for each embedding column ``b`` the product
+    ``ry (a h, Hp) x u[:, b] (Hp, w)``: the operator comes out as ``(C, b, a, h, w)``, whose rows
+    ``(C, b, a)`` are contiguous ``(h, w)`` blocks, so a batch of scenes is one product with it
+    (:func:`apply_operator`) and its gradient comes back in the same layout: no copy of the operator
+    either way. Returned as its ``(C, a, b, h, w)`` view. The same sums as the banded build up to their
+    order (both round ``u`` and the operator to bfloat16; the zeros the banded build skips add nothing).
+    """
+    (a, h), (b, w) = (factors[0].shape[0] // hw[0], hw[0]), (factors[2].shape[0] // hw[1], hw[1])
+    op = _MatrixUnitOperator.apply(psf, *factors, w)
+    return op.view(psf.shape[0], b, a, h, w).transpose(1, 2)
+
+
+def _matrix_unit_layout(op: torch.Tensor) -> bool:
+    """Whether a ``(C, a, b, h, w)`` operator is the view of a contiguous ``(C, b, a, h, w)`` one (:func:`_matrix_unit_operator`)."""
+    return op.dim() == 5 and not op.is_contiguous() and op.transpose(1, 2).is_contiguous()
+
+
+class _FlatApply(torch.autograd.Function):
+    """``x @ op.T`` for ``(B, K)`` scenes and an ``(R, K)`` operator; the operator's gradient in its layout."""
+
+    @staticmethod
+    def forward(ctx, op, x):
+        ctx.save_for_backward(op if ctx.needs_input_grad[1] else None, x if ctx.needs_input_grad[0] else None)
+        return x @ op.T
+
+    @staticmethod
+    def backward(ctx, grad):
+        op, x = ctx.saved_tensors
+        # (R, B) x (B, K) with the transposed gradient made contiguous: a transposed left factor takes
+        # bfloat16's slow path (Table 3's 24x32 canvas: 12.3 against 3.6 ms, one AMX core).
+        gop = grad.to(x.dtype).T.contiguous() @ x if ctx.needs_input_grad[0] else None
+        gx = grad.to(op.dtype) @ op if ctx.needs_input_grad[1] else None
+        return gop, gx
+
+
 def operator_rows(op: torch.Tensor) -> torch.Tensor | None:
     """The ``(h, a C b, w)`` canvas-row blocks of a ``(C, a, b, h, w)`` operator held row by row, else None.
 
@@ -373,6 +457,13 @@ def apply_operator(op: torch.Tensor, scene: torch.Tensor, skip_zeros: bool = Tru
     x = scene.reshape(scene.shape[0], scene.shape[1], h * w)
     if x.shape[1] not in (1, C):
         raise ConfigError("scene channels", x.shape[1], f"must be 1 or {C} (the PSF's channels)")
+    if _matrix_unit_layout(op):  # one product with the (C b a, h w) matrix (_matrix_unit_operator)
+        flat = op.transpose(1, 2).reshape(C, b * a, h * w)
+        if x.shape[1] == 1:
+            out = _FlatApply.apply(flat.reshape(C * b * a, h * w), x[:, 0])
+        else:
+            out = torch.bmm(x.transpose(0, 1), flat.transpose(1, 2)).transpose(0, 1)
+        return out.reshape(scene.shape[0], C, b, a).transpose(2, 3).reshape(scene.shape[0], C, a, b)
     sparse = skip_zeros and x.shape[1] == 1 and not x.requires_grad
     rows = operator_rows(op) if sparse and op.device.type == "cpu" else None
     out, runs = _row_major_product(scene[:, 0], rows) if rows is not None else (None, None)
