@@ -75,15 +75,19 @@ def test_region_is_used_only_where_cheaper():
         assert fixed.support_region(_canvases(batch=200), 0.05) == (7, 21, 30, 47)
 
 
+@pytest.mark.parametrize("box", [(7, 21, 30, 47), (1, 40, 0, 51)], ids=["small window", "most of the scene"])
 @pytest.mark.parametrize("cut", [True, False])
-def test_measure_window_is_measure_of_the_whole_scene(cut):
-    """A window's pixels at a corner of an otherwise dark scene: the same embeddings as measuring that scene
-    (float64 optics: 1e-12 relative, summation order only), along the window's own operator or the whole."""
+def test_measure_window_is_measure_of_the_whole_scene(cut, box):
+    """A window's pixels in an otherwise dark scene: the same embeddings as measuring that scene (float64
+    optics: 1e-12 relative, summation order only), along the window's own operator (a small window), the whole
+    scene's laid out at once (a window over most of the scene is no cheaper region), or measure's own path."""
     enc = _encoder(LearnedSLM, "float64")
     enc.support_regions = cut
-    x = _canvases(batch=200)
-    window = x[..., 7:21, 30:47]
-    torch.testing.assert_close(enc.measure_window(window, (7, 30), (40, 52), 0.05), enc.measure(x, 0.05),
+    x = _canvases(batch=200, box=box)
+    r0, r1, c0, c1 = box
+    assert (enc._cheaper_region(200, (40, 52), 0.05, box) == box) == (box[0] == 7)  # both branches taken
+    window = x[..., r0:r1, c0:c1]
+    torch.testing.assert_close(enc.measure_window(window, (r0, c0), (40, 52), 0.05), enc.measure(x, 0.05),
                                rtol=1e-12, atol=1e-15)
 
 
