@@ -397,7 +397,8 @@ def cmd_sweep(args, extra) -> int:
         per_worker = sweep.resolve_threads(args.workers, args.threads)
         est = estimate(planned, threads=per_worker)
         if args.order == "longest":
-            planned = sweep.longest_first(planned, {k: e["seconds"] for k, e in est.items()})
+            planned = sweep.longest_first(planned, {k: e["seconds"] for k, e in est.items()},
+                                          {p.cell.name: sweep.machine_share(p, args.workers, per_worker) for p in planned})
     if args.dry_run:
         # A cell holds its share of the sweep's threads while it runs (one that asks for them all runs alone).
         secs = [(est[p.cell.name]["seconds"], sweep.machine_share(p, args.workers, per_worker))

@@ -70,17 +70,24 @@ def plan(spec: SweepSpec, sweep_dir: str | Path, only: list[str] | None = None) 
 ORDERS = ("spec", "longest")
 
 
-def longest_first(planned: list[PlannedCell], seconds: dict[str, float]) -> list[PlannedCell]:
+def longest_first(planned: list[PlannedCell], seconds: dict[str, float],
+                  shares: dict[str, float] | None = None) -> list[PlannedCell]:
     """``planned`` with the cells that take longest first (``seconds``: cell name -> estimated seconds).
 
     With several workers the sweep ends when its last cell does: started last, a long cell runs on alone
     while the other workers idle; started first, the short cells fill the workers' ends (the longest-
     processing-time rule). Ties and cells without an estimate (missing or NaN: counted as 0) keep the
     spec's order.
+
+    ``shares`` (cell name -> :func:`machine_share`): the cells that hold the whole machine go first, longest
+    first among them. Cells start in queue order (:class:`_Budget`), so such a cell queued behind a shared
+    one waits for it to end while the other workers' threads idle: in session 28 a one-thread cell started
+    as a two-thread one ended, and the next two-thread cell held one core idle for its 7.5 min.
     """
-    def key(p: PlannedCell) -> float:
+    def key(p: PlannedCell) -> tuple[bool, float]:
         s = seconds.get(p.cell.name, 0.0)
-        return -s if s == s else 0.0
+        alone = shares is not None and shares.get(p.cell.name, 0.0) >= 1.0
+        return (not alone, -s if s == s else 0.0)
 
     return sorted(planned, key=key)
 

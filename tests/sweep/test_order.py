@@ -38,6 +38,32 @@ def test_longest_first_bounds_the_idle_tail_of_two_workers():
     assert makespan(ordered) == 100.0  # the long cell from the start, the short ones beside it: the optimum
 
 
+def test_cells_holding_the_whole_machine_go_first():
+    # Cells start in queue order: a two-thread cell (share 1) queued behind a one-thread one (share 1/2)
+    # waits for it with the other core idle. Two workers; a cell of share 1 takes both.
+    def makespan(cells):
+        free, t = [0.0, 0.0], 0.0
+        for d, share in cells:
+            if share >= 1:
+                t = max(free)  # waits for both workers (every cell before it has started)
+                free = [t + d, t + d]
+            else:
+                i = free.index(min(free))
+                free[i] = max(free[i], t) + d
+        return max(free)
+
+    seconds = {"long1": 300.0, "alone": 250.0, "short": 100.0, "long2": 280.0}
+    shares = {"long1": 0.5, "alone": 1.0, "short": 0.5, "long2": 0.5}
+    planned = _cells("long1", "alone", "short", "long2")
+    assert [p.cell.name for p in sweep.longest_first(planned, seconds)] == ["long1", "long2", "alone", "short"]
+    ordered = [p.cell.name for p in sweep.longest_first(planned, seconds, shares)]
+    assert ordered == ["alone", "long1", "long2", "short"]
+    as_pairs = lambda names: [(seconds[n], shares[n]) for n in names]  # noqa: E731
+    # by length alone the two-thread cell waits for long1 and long2 (one core idle 20 s), and short runs alone after it
+    assert makespan(as_pairs(["long1", "long2", "alone", "short"])) == 650.0
+    assert makespan(as_pairs(ordered)) == 630.0  # alone first, then the shared cells pair up: no core idles but at the end
+
+
 def test_an_unknown_order_is_refused_with_the_allowed_values(tmp_path, capsys):
     spec = tmp_path / "s.yaml"
     spec.write_text("name: s\nbase: {}\naxes:\n  - seed: [0]\n")
