@@ -39,6 +39,13 @@ def test_auto_resolves_to_bfloat16_only_where_native(cpu):
     assert knobs.operator_dtype == ("bfloat16" if cpu else "same")  # what the encoder (and summary.json) holds
 
 
+def test_matrix_units_only_with_amx(cpu, monkeypatch):
+    assert hardware.matrix_units() is cpu
+    # AVX512-BF16 alone multiplies bfloat16 natively but has no matrix unit: the banded build stays there
+    monkeypatch.setattr(hardware, "cpu_flags", lambda: AVX2 | {"avx512f", "avx512_bf16"})
+    assert hardware.native_bfloat16("cpu") and not hardware.matrix_units()
+
+
 def test_explicit_bfloat16_is_kept_but_warns_where_emulated(cpu):
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
