@@ -27,7 +27,7 @@ __all__ = ["cpu_flags", "cpu_model", "describe", "matrix_units", "native_bfloat1
 #: CPU feature flags (Linux ``/proc/cpuinfo``) of native bfloat16 matrix products.
 BF16_CPU_FLAGS = frozenset({"amx_bf16", "avx512_bf16"})
 #: CPU feature flag of a bfloat16 matrix unit (Intel AMX): one large bfloat16 product runs at ~550 GMAC/s on one
-#: core of the development machine, ~6x float32's, and far above many small products (banded blocks: ~50).
+#: core of the development machine, ~6x float32's, and far above many small products (banded blocks: ~16).
 MATRIX_UNIT_FLAG = "amx_bf16"
 _GPU = ("gpu", "cuda", "auto")
 

@@ -393,8 +393,8 @@ class _MatrixUnitOperator(torch.autograd.Function):
 def _matrix_unit_operator(psf: torch.Tensor, factors, hw: tuple[int, int]) -> torch.Tensor:
     """:func:`scene_operator` by dense bfloat16 products, as a CPU's matrix units (AMX) run them.
 
-    A matrix unit multiplies one large bfloat16 product ~10 times faster per multiply-add than the banded
-    build's hundreds of small ones (on the development machine's AMX, one core: ~550 against ~50 GMAC/s),
+    A matrix unit multiplies one large bfloat16 product ~30 times faster per multiply-add than the banded
+    build's hundreds of small ones (on the development machine's AMX, one core: ~550 against ~16 GMAC/s),
     so the dense products, 15x the banded ones' multiply-adds on Table 3's 24x32 canvas, take less time.
     Columns first, ``u = psf rx^T``, then for each embedding column ``b`` the product
     ``ry (a h, Hp) x u[:, b] (Hp, w)``: the operator comes out as ``(C, b, a, h, w)``, whose rows
