@@ -310,8 +310,12 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         return psf
 
     # ----------------------------------------------------------------- imaging
-    def _geometry_factors(self, scene_shape: tuple[int, int], height_px: float, device):
-        """``(ry, rx, spans)``: the correlation tensors and their row spans (:func:`banded.row_spans`), cached."""
+    def _geometry_factors(self, scene_shape: tuple[int, int], height_px: float, device, dense: bool = False):
+        """``(ry, rx, spans)``: the correlation tensors and their row spans (:func:`banded.row_spans`), cached.
+
+        ``dense``: instead, their :func:`imaging.dense_factors` (the matrix-unit build's), made on first use and
+        cached in the same entry.
+        """
         key = ("corr", scene_shape, round(height_px, 9), self.operator_dtype, str(device), self.sensor.sampling)
         if key not in self._op_cache:
             H, W = self.geometry.grid
@@ -327,28 +331,25 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
             stale = [k for k in self._op_cache if k[0] == "corr"]
             for k in stale[: max(0, len(stale) - _MAX_GEOMETRIES + 1)]:
                 del self._op_cache[k]
-                self._op_cache.pop(("dense",) + k[1:], None)
             ry, rx = ry.to(device, self.operator_dtype), rx.to(device, self.operator_dtype)
             # Where each flattened row's nonzero entries lie: the banded build's plan (imaging.scene_operator).
             spans = tuple(banded.row_spans(r.reshape(-1, r.shape[-1])) for r in (ry, rx))
             # ry held as (h, a, Hp), its (a, h, Hp) view: the sorted build reads it in canvas-row order
             # without a copy, also cut to a region's rows (imaging.scene_operator).
             ry = ry.transpose(0, 1).contiguous().transpose(0, 1)
-            self._op_cache[key] = (ry, rx, spans)
-        return self._op_cache[key]
+            self._op_cache[key] = [ry, rx, spans, None]  # None: the dense factors, made on first use
+        entry = self._op_cache[key]
+        if not dense:
+            return tuple(entry[:3])
+        if entry[3] is None:
+            entry[3] = imaging.dense_factors(entry[0], entry[1])
+        return entry[3]
 
     def _uses_matrix_units(self, device) -> bool:
-        """Whether :meth:`operator` builds by dense products for the CPU's matrix units (:attr:`matrix_unit_operators`)."""
+        """Whether :meth:`operator` builds by dense products for the CPU's matrix units (:attr:`matrix_unit_operators`):
+        a bfloat16 operator on a CPU with them (the one place this is decided; ``scene_operator`` does as told)."""
         return (self.matrix_unit_operators and self.operator_dtype == torch.bfloat16 and torch.device(device).type == "cpu"
                 and hardware.matrix_units())
-
-    def _dense_factors(self, scene_shape: tuple[int, int], height_px: float, device):
-        """:func:`imaging.dense_factors` of the whole scene's correlation tensors, cached beside them."""
-        ry, rx, _ = self._geometry_factors(scene_shape, height_px, device)
-        key = ("dense", scene_shape, round(height_px, 9), self.operator_dtype, str(device), self.sensor.sampling)
-        if key not in self._op_cache:
-            self._op_cache[key] = imaging.dense_factors(ry, rx)
-        return self._op_cache[key]
 
     @staticmethod
     def _region_spans(spans, scene_shape, region):
@@ -395,7 +396,7 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         cached = self._op_cache.get("op")
         if cached is not None and cached[0] == key:
             return cached[1]
-        factors = self._dense_factors(tuple(scene_shape), height_px, psf.device) if units else None
+        factors = self._geometry_factors(tuple(scene_shape), height_px, psf.device, dense=True) if units else None
         op = imaging.scene_operator(psf.to(self.operator_dtype), ry, rx, spans, self.sorted_band_rows, self.row_major_operators,
                                     units, factors)
         self._op_cache["op"] = (key, op)
@@ -513,22 +514,20 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         region = (r0, r0 + h, c0, c0 + w)
         x = _as_intensity(windows)
         self._check_height(height)
-        by_operator = self.auto_method(len(x), (H, W)) == "operator"
-        if by_operator and self.support_regions and self._cheaper_region(len(x), (H, W), height, region) == region:
+        if self.support_regions and self.auto_method(len(x), (H, W)) == "operator":
             with torch.autocast(x.device.type, enabled=False):  # the optics keep their own precisions
-                op = self.operator((H, W), height, region)
-                out = imaging.apply_operator(op, x.to(self.optics_dtype).to(op.dtype), self.banded_operators).to(self.optics_dtype)
-            return out.to(x.dtype)
-        if by_operator and self.support_regions:
-            # The whole scene's operator: the window, which holds every nonzero pixel, was not a cheaper region, so no
-            # part of it is looked for (measure's support_region: a scan of the whole canvas). The scenes are laid out
-            # in the operator's precision at once (a whole-canvas float copy and its conversion: ~4 ms of Table 3's
-            # 24x32 shift step on one core).
-            with torch.autocast(x.device.type, enabled=False):
-                op = self.operator((H, W), height)
-                full = x.new_zeros(*x.shape[:2], H, W, dtype=op.dtype)
-                full[..., r0 : r0 + h, c0 : c0 + w] = x.to(self.optics_dtype)
-                out = imaging.apply_operator(op, full, self.banded_operators).to(self.optics_dtype)
+                if self._cheaper_region(len(x), (H, W), height, region) == region:
+                    op = self.operator((H, W), height, region)
+                    scenes = x.to(self.optics_dtype).to(op.dtype)
+                else:
+                    # The whole scene's operator: the window holds every nonzero pixel and is no cheaper region, so
+                    # no part of it is looked for (measure's support_region: a scan of the whole canvas), and the
+                    # scenes are laid out in the operator's precision at once (a float padding and its conversion:
+                    # ~4 ms of Table 3's 24x32 shift step on one core).
+                    op = self.operator((H, W), height)
+                    scenes = x.new_zeros(*x.shape[:2], H, W, dtype=op.dtype)
+                    scenes[..., r0 : r0 + h, c0 : c0 + w] = x.to(self.optics_dtype)
+                out = imaging.apply_operator(op, scenes, self.banded_operators).to(self.optics_dtype)
             return out.to(x.dtype)
         full = torch.nn.functional.pad(x, (c0, W - c0 - w, r0, H - r0 - h))
         return self.measure(full, height)

@@ -279,9 +279,9 @@ def scene_operator(psf: torch.Tensor, ry: torch.Tensor, rx: torch.Tensor, spans=
             False: consecutive rows only (a reference).
         row_major: where the rows are sorted, return the operator held canvas row by canvas row (below);
             False: a contiguous ``(C, a, b, h, w)`` tensor always (a reference).
-        matrix_units: a bfloat16 PSF on a CPU whose matrix units multiply bfloat16 (AMX,
-            :func:`optoenc.hardware.matrix_units`, checked by the caller): the dense products, in the layout
-            that one product applies (:func:`_matrix_unit_operator`), whatever ``spans`` says.
+        matrix_units: the dense products, in the layout that one product applies (:func:`_matrix_unit_operator`),
+            whatever ``spans`` says: for a bfloat16 PSF on a CPU whose matrix units multiply bfloat16 (AMX), as the
+            caller decides (:meth:`OpticalEncoder._uses_matrix_units`); any dtype gives the same operator.
         factors: ``dense_factors(ry, rx)`` where the caller keeps them (the ``matrix_units`` build).
 
     Returns:
@@ -293,7 +293,7 @@ def scene_operator(psf: torch.Tensor, ry: torch.Tensor, rx: torch.Tensor, spans=
         (``ry.transpose(0, 1)`` contiguous) spares that build a copy of it.
     """
     C, (a, h, Hp), (b, w, Wp) = psf.shape[0], ry.shape, rx.shape
-    if matrix_units and psf.dtype == torch.bfloat16 and psf.device.type == "cpu":
+    if matrix_units:
         return _matrix_unit_operator(psf, dense_factors(ry, rx) if factors is None else factors, (h, w))
     rx2 = rx.reshape(b * w, Wp)
     rows_first = a * h * Wp * (Hp + b * w)  # the dense products' multiply-adds, per PSF channel
@@ -403,7 +403,8 @@ def _matrix_unit_operator(psf: torch.Tensor, factors, hw: tuple[int, int]) -> to
     either way. Returned as its ``(C, a, b, h, w)`` view. The same sums as the banded build up to their
     order (both round ``u`` and the operator to bfloat16; the zeros the banded build skips add nothing).
     """
-    (a, h), (b, w) = (factors[0].shape[0] // hw[0], hw[0]), (factors[2].shape[0] // hw[1], hw[1])
+    h, w = hw
+    a, b = factors[0].shape[0] // h, factors[2].shape[0] // w
     op = _MatrixUnitOperator.apply(psf, *factors, w)
     return op.view(psf.shape[0], b, a, h, w).transpose(1, 2)
 
