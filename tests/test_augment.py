@@ -269,3 +269,73 @@ def test_resampling_a_range_of_cells_gives_exactly_those_cells(expanded):
     assert torch.equal(whole, dense)
     for lo, hi in [(0, 40), (3, 17), (39, 40)]:
         assert torch.equal(_resample_axis(img, -2, start, scale, (lo, hi)), whole[:, :, lo:hi])
+
+
+@pytest.mark.parametrize("expanded", [False, True])
+def test_each_examples_own_cells_are_the_whole_resamplings(expanded):
+    # place_window resamples each example's band of cells only (cells = (first, count)): bit for bit the
+    # whole resampling's cells, and the band (_band) holds every cell the whole resampling makes nonzero,
+    # for shifts, shrinks and enlargements, inputs that are zero near their ends, and bands cut by the range.
+    from optoenc.augment import _band, _resample_axis
+
+    g = torch.Generator().manual_seed(3)
+    img = torch.zeros(1 if expanded else 6, 1, 40, 7, dtype=torch.float64)
+    img[:, :, 9:23] = torch.rand(img.shape[0], 1, 14, 7, generator=g, dtype=torch.float64)
+    img = img.expand(6, -1, -1, -1) if expanded else img
+    start = torch.tensor([-20.0, -3.3, 0.0, 7.71, 15.5, 30.2], dtype=torch.float64)
+    scale = torch.tensor([1.0, 1.0, 0.37, 1.0, 2.9, 1.3], dtype=torch.float64)
+    whole = _resample_axis(img, -2, start, scale)
+    for lo, hi in [(0, 40), (5, 33)]:
+        first, count = _band(img, start, scale, lo, hi)
+        assert count < hi - lo  # a band, not the range
+        band = _resample_axis(img, -2, start, scale, (first, count))
+        for b in range(6):
+            f = int(first[b])
+            assert lo <= f and f + count <= hi
+            assert torch.equal(band[b, :, :], whole[b, :, f : f + count])
+            outside = whole[b, :, lo:hi].clone()
+            outside[:, f - lo : f - lo + count] = 0
+            assert float(outside.abs().max()) == 0.0  # exactly zero: nothing of the object is dropped
+
+
+@pytest.mark.parametrize("names", [["shift"], ["rescale"], ["shift", "rescale"], ["rescale", "shift"], ["shift", "rotate"]])
+@pytest.mark.parametrize("autocast", [False, True])
+def test_place_window_by_bands_is_the_whole_windows_bit_for_bit(names, autocast, monkeypatch):
+    # The bands (each object's rows and columns, pasted on the window) are the same canvases as resampling
+    # the whole window, exactly: each cell is computed alone, and the placement products sum the same 28
+    # terms per pixel; also in bfloat16 autocast (the training step's) and before a warp.
+    import optoenc.augment as augment
+
+    comp = Compose([next(c() for c in BUILTIN if c.name == n) for n in names])
+    g = torch.Generator().manual_seed(4)
+    scenes = _digits(9, seed=4)
+    u = torch.rand(9, comp.n_random, generator=g, dtype=torch.float64)
+    pasted = []
+    real_paste = augment.paste
+    monkeypatch.setattr(augment, "paste", lambda *a: pasted.append(1) or real_paste(*a))
+    monkeypatch.setattr(augment, "_BAND_GAIN", 0)  # bands wherever a separable transform leads
+    with torch.autocast("cpu", dtype=torch.bfloat16, enabled=autocast):
+        banded, corner = comp.place_window(scenes, GEOM, 0.12, u)
+        assert pasted
+        monkeypatch.setattr(augment, "_BAND_GAIN", 10**9)  # never
+        whole, corner2 = comp.place_window(scenes, GEOM, 0.12, u)
+    assert len(pasted) == 1 and corner == corner2 and banded.dtype == whole.dtype
+    assert torch.equal(banded, whole)
+
+
+@pytest.mark.parametrize("dtype", [torch.bfloat16, torch.float16, torch.float32, torch.float64])
+def test_paste_puts_each_window_at_its_offset_in_any_dtype(dtype):
+    # Two-byte floats are scattered as their bits: the same values, signed zeros included.
+    from optoenc.augment import paste
+
+    g = torch.Generator().manual_seed(5)
+    windows = (torch.rand(3, 2, 4, 5, generator=g) - 0.5).to(dtype)
+    windows[0, 0, 0, 0] = -0.0
+    offsets = torch.tensor([[0, 0], [3, 6], [6, 1]])
+    out = paste(windows, offsets, (10, 11))
+    assert out.dtype == dtype
+    expect = torch.zeros(3, 2, 10, 11, dtype=dtype)
+    for b, (r, c) in enumerate(offsets.tolist()):
+        expect[b, :, r : r + 4, c : c + 5] = windows[b]
+    assert torch.equal(out, expect)
+    assert torch.signbit(out[0, 0, 0, 0])

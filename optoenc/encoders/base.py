@@ -526,7 +526,10 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
                     # ~4 ms of Table 3's 24x32 shift step on one core).
                     op = self.operator((H, W), height)
                     scenes = x.new_zeros(*x.shape[:2], H, W, dtype=op.dtype)
-                    scenes[..., r0 : r0 + h, c0 : c0 + w] = x.to(self.optics_dtype)
+                    # Rounded through the optics' precision as measure does; a window already in it or in the
+                    # operator's (a bfloat16 one: autocast's placement) is copied as it is (the same values).
+                    exact = x.dtype in (self.optics_dtype, op.dtype)
+                    scenes[..., r0 : r0 + h, c0 : c0 + w] = x if exact else x.to(self.optics_dtype)
                 out = imaging.apply_operator(op, scenes, self.banded_operators).to(self.optics_dtype)
             return out.to(x.dtype)
         full = torch.nn.functional.pad(x, (c0, W - c0 - w, r0, H - r0 - h))

@@ -23,7 +23,7 @@ import hashlib
 
 import torch
 
-from ..augment import Compose
+from ..augment import Compose, _window_index, paste
 from ..errors import ConfigError
 from . import cache
 
@@ -155,26 +155,10 @@ def store_transformed(augs, canvas, images: torch.Tensor, u: torch.Tensor, batch
     return out, offsets
 
 
-def paste(windows: torch.Tensor, offsets: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
-    """Canvases ``(B, C, rows, cols)``, zero but for each example's window at its offset."""
-    B, C, h, w = windows.shape
-    idx = _window_index(offsets.to(windows.device, torch.long), C, (h, w), shape[1])
-    out = torch.zeros(B, C, shape[0] * shape[1], dtype=windows.dtype, device=windows.device)
-    return out.scatter_(2, idx, windows.reshape(B, C, h * w)).reshape(B, C, *shape)
-
-
 def _crop(canvases: torch.Tensor, corners: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
     """The ``(B, C, h, w)`` windows of ``canvases`` at ``corners``: the inverse of :func:`paste`."""
     B, C, _rows, cols = canvases.shape
     return canvases.reshape(B, C, -1).gather(2, _window_index(corners, C, size, cols)).reshape(B, C, *size)
-
-
-def _window_index(corners: torch.Tensor, channels: int, size: tuple[int, int], cols: int) -> torch.Tensor:
-    """``(B, C, h w)`` flat canvas indices of the ``size`` windows whose top-left corners are ``corners``."""
-    h, w = size
-    r = corners[:, 0, None] + torch.arange(h, device=corners.device)
-    c = corners[:, 1, None] + torch.arange(w, device=corners.device)
-    return (r[:, :, None] * cols + c[:, None, :]).reshape(len(corners), 1, h * w).expand(-1, channels, -1)
 
 
 def _inside(corners: torch.Tensor, size: tuple[int, int], shape: tuple[int, int]) -> torch.Tensor:
