@@ -297,6 +297,10 @@ class Compose(nn.Module):
     ``u`` ``(B, n_random)`` holds every augmentation's uniforms side by side, in order.
     """
 
+    #: :meth:`place_window` resamples each object's band of the window and pastes it (the same canvases,
+    #: exactly); False: the whole window (the reference of ``optoenc bench steps --against bands``).
+    placement_bands: ClassVar[bool] = True
+
     def __init__(self, augmentations: Sequence[Augmentation]):
         super().__init__()
         self.augmentations = nn.ModuleList(augmentations)
@@ -357,7 +361,7 @@ class Compose(nn.Module):
         if i:  # the last only over each example's band of the window's rows and columns (its object)
             (t0, s0), (t1, s1) = resamplings[-1]
             rows, cols = _band(p, t0, s0, r0, r1), _band(q, t1, s1, c0, c1)
-            if rows[1] * cols[1] * _BAND_GAIN > (r1 - r0) * (c1 - c0):  # the window is hardly larger
+            if not self.placement_bands or rows[1] * cols[1] * _BAND_GAIN > (r1 - r0) * (c1 - c0):  # hardly larger
                 rows, cols = (r0, r1), (c0, c1)
             p, q = _resample_axis(p, -2, t0, s0, rows), _resample_axis(q, -2, t1, s1, cols)
         else:

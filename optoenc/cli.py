@@ -127,7 +127,8 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--against", default="support", metavar="PAIR",
                    help="steps: the pair timed side by side (optoenc.bench.steps.AGAINST): support regions off/on (default), dense/banded operator "
                         "build, the LCD's PSF by 2-D FFTs/axis by axis (propagation), the banded build's consecutive/sorted rows (sorted), "
-                        "its operator copied/held by canvas rows (rows), a bfloat16 operator's banded/matrix-unit build (matrix_units)")
+                        "its operator copied/held by canvas rows (rows), a bfloat16 operator's banded/matrix-unit build (matrix_units), "
+                        "redrawn transforms placed over the whole window/each object's band (bands)")
     sw = sub.add_parser("sweep", help="run a sweep of runs from a spec (resumable), collect CSV, tables and plots")
     sw.add_argument("spec", help="sweep spec YAML (base config, axes, cells, paper figures)")
     sw.add_argument("--out", metavar="DIR", help="sweep directory (default: sweeps/<spec name>)")

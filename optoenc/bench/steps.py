@@ -21,6 +21,9 @@ names the pair (:data:`AGAINST`):
 * ``matrix_units``: :attr:`OpticalEncoder.matrix_unit_operators` off (a bfloat16
   operator's banded build) -> on (dense products for the CPU's matrix units, AMX;
   the same step where the operator is not bfloat16 or the CPU has none).
+* ``bands``: :attr:`optoenc.augment.Compose.placement_bands` off (transforms redrawn
+  every step resample the whole window of the canvas) -> on (each object's band,
+  pasted on the window; the same canvases). Other cells take the same step.
 
 The allocator setting (:mod:`optoenc.training.allocator`) cannot be compared
 in one process: glibc reuses the free chunks a process has kept whatever its
@@ -65,6 +68,12 @@ def _set_matrix_units(enc, on: bool) -> None:
     enc.matrix_unit_operators = on
 
 
+def _set_bands(enc, on: bool) -> None:
+    from ..augment import Compose
+
+    Compose.placement_bands = on
+
+
 def _set_propagation(enc, on: bool) -> None:
     enc.knobs = enc.knobs.replace(propagation="separable" if on else "blas")
     enc.invalidate_psf()
@@ -78,6 +87,7 @@ AGAINST = {
     "sorted": ("consecutive band rows", "sorted band rows", _set_sorted),
     "rows": ("(C, a, b, h, w) operator", "canvas-row operator", _set_rows),
     "matrix_units": ("banded bfloat16 build", "matrix-unit build", _set_matrix_units),
+    "bands": ("whole-window placement", "band placement", _set_bands),
 }
 
 
