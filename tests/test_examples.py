@@ -136,3 +136,25 @@ def test_step_profile_times_a_cells_own_training_steps(tmp_path):
     assert [p.name for p in cell.iterdir()] == ["config.yaml"]
     with pytest.raises(SystemExit, match="no training batch timed"):  # more warm batches than the data has
         mod["step_seconds"](cell, steps=3, warm=20)
+
+
+@pytest.mark.filterwarnings("ignore")  # the small grid's sampling warning
+def test_build_products_times_both_ways_and_the_forward_gives_the_same_numbers(tmp_path, capsys):
+    # The script builds a cell's own correlation tensors and times a product per column against one product and
+    # a copy: the forward's two ways give the same bfloat16 operator bit for bit (optoenc's build relies on it),
+    # the backward's do not claim to.
+    import runpy
+
+    cell = tmp_path / "cell"
+    cell.mkdir()
+    (cell / "config.yaml").write_text(
+        "encoder: {name: learned_slm}\ndecoder: {name: fcnn}\nsensor: {embedding: [3, 4]}\naugment: {shift: {}}\n"
+        "fidelity: {grid: [48, 64], operator_dtype: bfloat16}\n"
+        "dataset: {train_size: 400, val_size: 100, test_size: 100}\ntrainer: {batch_size: 50}\n")
+    mod = runpy.run_path(str(EXAMPLES / "paper" / "build_products.py"))
+    mod["main"]([str(cell), "--threads", "1", "--repeats", "1", "--steps", "1"])
+    out = capsys.readouterr().out
+    assert "torch.bfloat16" in out and "b = 4" in out
+    assert "forward: a product per column" in out and "the same numbers: True" in out.split("\n")[1]
+    assert "backward: a product per column" in out
+    assert [p.name for p in cell.iterdir()] == ["config.yaml"]

@@ -76,10 +76,13 @@ def main(argv=None) -> None:
     u_cols = u.transpose(1, 2).contiguous()  # (C, b, Hp, w): each column's factor whole
     out_cols, out_one = psf.new_empty(C, b, ah, w), psf.new_empty(C, b, ah, w)
 
-    def fwd_columns():
+    def per_column(left, right, out):  # a product per channel and embedding column, into its block of out
         for c in range(C):
             for j in range(b):
-                torch.mm(ry2, u_cols[c, j], out=out_cols[c, j])
+                torch.mm(left, right[c, j], out=out[c, j])
+
+    def fwd_columns():
+        per_column(ry2, u_cols, out_cols)
 
     def fwd_one():
         for c in range(C):
@@ -89,9 +92,7 @@ def main(argv=None) -> None:
     gu_cols, gu_one = psf.new_empty(C, b, Hp, w), psf.new_empty(C, Hp, b * w)
 
     def bwd_columns():
-        for c in range(C):
-            for j in range(b):
-                torch.mm(ry2_t, grad[c, j], out=gu_cols[c, j])
+        per_column(ry2_t, grad, gu_cols)
 
     def bwd_one():
         for c in range(C):

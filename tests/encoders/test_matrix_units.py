@@ -123,3 +123,19 @@ def test_encoder_takes_the_matrix_unit_build_for_bfloat16_where_the_cpu_has_unit
         # Measured 1.8e-3 (embedding) and 1.6e-3 (the logits' gradient), both paths alike.
         assert 0 < rel(e, e_ref) < 2 * BF16_TWO_ROUNDINGS
         assert 0 < rel(grad, g_ref) < 2 * BF16_TWO_ROUNDINGS
+
+
+@pytest.mark.parametrize("channels", [1, 3])
+def test_bfloat16_build_is_the_per_column_products_bit_for_bit(channels):
+    """The build multiplies each channel's ``u (Hp, b w)`` at once and copies the result into the (b, a h, w)
+    layout: every entry is the same sum of ``Hp`` products as a product per embedding column gives (the
+    build until session 29, which trained the committed bfloat16 cells), so the operator is equal, not close."""
+    ry, rx = _factors(scene=(30, 41), grid=(96, 128), out=(6, 8), height=40.0, dtype=torch.bfloat16)
+    ry2, ry2_t, rx2, rx2_t = imaging.dense_factors(ry, rx)
+    (a, h, Hp), (b, w, Wp) = ry.shape, rx.shape
+    psf = torch.rand(channels, Hp, Wp, generator=torch.Generator().manual_seed(6)).to(torch.bfloat16)
+    op = imaging._MatrixUnitOperator.apply(psf, ry2, ry2_t, rx2, rx2_t, w)
+    u = (psf.reshape(channels * Hp, Wp) @ rx2_t).view(channels, Hp, b, w)
+    per_column = torch.stack([torch.stack([ry2 @ u[c, :, j].contiguous() for j in range(b)]) for c in range(channels)])
+    assert op.shape == per_column.shape == (channels, b, a * h, w)
+    assert torch.equal(op, per_column)
