@@ -366,10 +366,11 @@ class _MatrixUnitOperator(torch.autograd.Function):
 
     Forward: one product per channel, ``ry (a h, Hp) x u (Hp, b w)``, then its ``(a h, b, w) -> (b, a h, w)``
     copy: the same operator, bit for bit, as a product per embedding column ``b`` writing the layout
-    directly, which ran ~1.8x slower (Table 3's 24x32 canvas, two AMX cores: 7.0 against 2.5 + 1.4 ms;
-    ``examples/paper/build_products.py``). Backward: a product per column, ``ry^T (Hp, a h) x grad[b]
-    (a h, w)``. One product with the gradient's copy would take 4.7 + 1.2 against 10.7 ms, but sums in
-    another order (bfloat16 rounding apart), so every bfloat16 learned cell would train differently.
+    directly (Table 3's 24x32 canvas, two AMX cores: 1.02-1.23x faster alone, ``examples/paper/build_products.py``;
+    1.06x on average in the training step, where the copy competes for the caches). Backward: a product per
+    column, ``ry^T (Hp, a h) x grad[b] (a h, w)``. One product with the gradient's copy would be ~1.7x faster
+    alone (1.11x in the step), but sums in another order (bfloat16 rounding apart), so every bfloat16 learned
+    cell would train differently (docs/benchmarks.md, "One product per channel").
     """
 
     @staticmethod
