@@ -158,3 +158,5 @@ def test_build_products_times_both_ways_and_the_forward_gives_the_same_numbers(t
     assert "forward: a product per column" in out and "the same numbers: True" in out.split("\n")[1]
     assert "backward: a product per column" in out
     assert [p.name for p in cell.iterdir()] == ["config.yaml"]
+    with pytest.raises(SystemExit, match="no config.yaml"):
+        mod["main"]([str(tmp_path / "nowhere")])

@@ -70,6 +70,8 @@ def main(argv=None) -> None:
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--steps", type=int, default=10)
     args = p.parse_args(argv)
+    if not (args.cell / "config.yaml").is_file():
+        raise SystemExit(f"CELL_DIR = {args.cell}: no config.yaml there (a sweep cell's folder holds one)")
     psf, (ry2, ry2_t, rx2, rx2_t), w = factors(args.cell)
     (C, Hp, Wp), ah, b = psf.shape, ry2.shape[0], rx2.shape[0] // w
     u = (psf.reshape(C * Hp, Wp) @ rx2_t).view(C, Hp, b, w)
