@@ -25,7 +25,7 @@ import torch
 from torch import nn
 
 from .encoders.base import _coerce
-from .encoders.imaging import area_matrix
+from .encoders.imaging import area_matrix, paste
 from .errors import ConfigError
 from .settings import Documented, Settings, setting
 
@@ -183,28 +183,6 @@ def _band(img: torch.Tensor, start: torch.Tensor, scale: torch.Tensor, lo: int, 
     return first.long().clamp(max=hi - count), count
 
 
-def paste(windows: torch.Tensor, offsets: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
-    """Canvases ``(B, C, rows, cols)``, zero but for each example's window at its offset (rows, cols).
-
-    Two-byte floats are moved as their bits (``int16``): a copy either way, and torch's CPU scatter of
-    ``bfloat16`` is ~3x slower than of ``int16`` (Table 3's shift batch: 1.2 against 0.4 ms, two threads).
-    """
-    B, C, h, w = windows.shape
-    bits = windows.view(torch.int16) if windows.dtype in (torch.bfloat16, torch.float16) else windows
-    idx = _window_index(offsets.to(windows.device, torch.long), C, (h, w), shape[1])
-    out = torch.zeros(B, C, shape[0] * shape[1], dtype=bits.dtype, device=windows.device)
-    out = out.scatter_(2, idx, bits.reshape(B, C, h * w)).reshape(B, C, *shape)
-    return out.view(windows.dtype)
-
-
-def _window_index(corners: torch.Tensor, channels: int, size: tuple[int, int], cols: int) -> torch.Tensor:
-    """``(B, C, h w)`` flat canvas indices of the ``size`` windows whose top-left corners are ``corners``."""
-    h, w = size
-    r = corners[:, 0, None] + torch.arange(h, device=corners.device)
-    c = corners[:, 1, None] + torch.arange(w, device=corners.device)
-    return (r[:, :, None] * cols + c[:, None, :]).reshape(len(corners), 1, h * w).expand(-1, channels, -1)
-
-
 class Augmentation(Documented, nn.Module):
     """Base class: a random object-plane transform of a canvas ``(B, C, rows, cols)``.
 
@@ -350,6 +328,32 @@ class Compose(nn.Module):
         read and write zeros only. ``(row, col)``: its top-left pixel on the
         canvas. The whole canvas where a transform may reach anywhere.
         """
+        placed, offsets, (r0, r1, c0, c1), local, u, i, k = self._place(scenes, geometry, object_height, u)
+        if offsets is not None:  # each example's band, on the window
+            placed = paste(placed, offsets - torch.tensor([r0, c0], device=offsets.device), (r1 - r0, c1 - c0))
+        return self._apply(placed, geometry, local, u, i, k), (r0, c0)
+
+    def place_bands(
+        self, scenes: torch.Tensor, geometry: CanvasGeometry, object_height: Any = None, u: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor, tuple[int, int, int, int]] | None:
+        """:meth:`place_window`'s canvases before any band is pasted: ``(placed, offsets, window)`` where every
+        transform is a shift or rescale, else None (a warp needs the window: use :meth:`place_window`).
+
+        ``window = (r0, r1, c0, c1)``: the canvas part :meth:`place_window` returns. ``offsets`` ``(B, 2)``: each
+        example's band's top-left pixel on the canvas (rows, cols), ``placed`` the bands ``(B, C, h, w)``; or
+        None where the whole window was resampled (a band would be most of it), ``placed`` that window. The same
+        draws give the same canvases: :meth:`~optoenc.encoders.base.OpticalEncoder.measure_pasted` measures the
+        bands without pasting them on the window first.
+        """
+        if any(not isinstance(a, SeparableAugmentation) for a in self.augmentations):
+            return None
+        placed, offsets, window, _local, _u, _i, _k = self._place(scenes, geometry, object_height, u)
+        return placed, offsets, window
+
+    def _place(self, scenes, geometry, object_height, u):
+        """``(placed, offsets, (r0, r1, c0, c1), local state, u, i, k)``: the leading separable transforms applied
+        to the placement, by bands (``placed`` each example's band, ``offsets`` ``(B, 2)`` their canvas corners)
+        or over the whole window (``offsets`` None); ``i`` transforms and ``k`` columns of ``u`` used."""
         B = scenes.shape[0]
         u = self._draws(B, scenes.device, u)
         p, q = (m.expand(B, 1, -1, -1) for m in _placement(scenes, geometry))
@@ -358,22 +362,22 @@ class Compose(nn.Module):
         (r0, r1), (c0, c1) = self._window(geometry, state, list(self.augmentations)[i:])
         for (t0, s0), (t1, s1) in resamplings[:-1]:
             p, q = _resample_axis(p, -2, t0, s0), _resample_axis(q, -2, t1, s1)
+        offsets = None
         if i:  # the last only over each example's band of the window's rows and columns (its object)
             (t0, s0), (t1, s1) = resamplings[-1]
             rows, cols = _band(p, t0, s0, r0, r1), _band(q, t1, s1, c0, c1)
             if not self.placement_bands or rows[1] * cols[1] * _BAND_GAIN > (r1 - r0) * (c1 - c0):  # hardly larger
                 rows, cols = (r0, r1), (c0, c1)
+            else:
+                offsets = torch.stack([rows[0], cols[0]], 1)
             p, q = _resample_axis(p, -2, t0, s0, rows), _resample_axis(q, -2, t1, s1, cols)
         else:
             p, q = p[:, :, r0:r1], q[:, :, c0:c1]
         py = p[:, 0].to(scenes.dtype)[:, None]
         qx = q[:, 0].to(scenes.dtype).transpose(-1, -2)[:, None]
-        window = py @ scenes @ qx
-        if tuple(window.shape[-2:]) != (r1 - r0, c1 - c0):  # each example's band, on the window
-            window = paste(window, torch.stack([rows[0] - r0, cols[0] - c0], 1), (r1 - r0, c1 - c0))
         corner = torch.tensor([r0, c0], dtype=state.center.dtype, device=state.center.device)
         local = ObjectState(state.center - corner, state.box, state.height)
-        return self._apply(window, geometry, local, u, i, k), (r0, c0)
+        return py @ scenes @ qx, offsets, (r0, r1, c0, c1), local, u, i, k
 
     def placed_state(self, geometry: CanvasGeometry, object_height: Any, u: torch.Tensor) -> ObjectState:
         """Where the leading shifts and rescales put each object (draws ``u`` ``(B, n_random)``): the

@@ -354,6 +354,28 @@ def _banded_operator(psf, ry, rx2, py, px, bw, row_major: bool) -> torch.Tensor:
     return m.reshape(a, h, C, b, w).permute(2, 0, 3, 1, 4).contiguous()
 
 
+def paste(windows: torch.Tensor, offsets: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
+    """Canvases ``(B, C, rows, cols)``, zero but for each example's window at its offset (rows, cols).
+
+    Two-byte floats are moved as their bits (``int16``): a copy either way, and torch's CPU scatter of
+    ``bfloat16`` is ~3x slower than of ``int16`` (Table 3's shift batch: 1.2 against 0.4 ms, two threads).
+    """
+    B, C, h, w = windows.shape
+    bits = windows.view(torch.int16) if windows.dtype in (torch.bfloat16, torch.float16) else windows
+    idx = _window_index(offsets.to(windows.device, torch.long), C, (h, w), shape[1])
+    out = torch.zeros(B, C, shape[0] * shape[1], dtype=bits.dtype, device=windows.device)
+    out = out.scatter_(2, idx, bits.reshape(B, C, h * w)).reshape(B, C, *shape)
+    return out.view(windows.dtype)
+
+
+def _window_index(corners: torch.Tensor, channels: int, size: tuple[int, int], cols: int) -> torch.Tensor:
+    """``(B, C, h w)`` flat canvas indices of the ``size`` windows whose top-left corners are ``corners``."""
+    h, w = size
+    r = corners[:, 0, None] + torch.arange(h, device=corners.device)
+    c = corners[:, 1, None] + torch.arange(w, device=corners.device)
+    return (r[:, :, None] * cols + c[:, None, :]).reshape(len(corners), 1, h * w).expand(-1, channels, -1)
+
+
 def dense_factors(ry: torch.Tensor, rx: torch.Tensor) -> tuple[torch.Tensor, ...]:
     """``(ry (a h, Hp), its transpose, rx (b w, Wp), its transpose)``, each contiguous: the matrix-unit build's factors."""
     (a, h, Hp), (b, w, Wp) = ry.shape, rx.shape

@@ -23,7 +23,8 @@ import hashlib
 
 import torch
 
-from ..augment import Compose, _window_index, paste
+from ..augment import Compose
+from ..encoders.imaging import _window_index, paste
 from ..errors import ConfigError
 from . import cache
 
@@ -99,8 +100,14 @@ def transformed_embedding(encoder, comp: Compose, canvas, scenes: torch.Tensor,
     Only the part of the canvas the objects can reach is transformed and measured
     (:meth:`~optoenc.augment.Compose.place_window`, :meth:`~optoenc.encoders.base.OpticalEncoder.measure_window`).
     """
-    window, corner = comp.place_window(scenes, canvas, encoder.scene_config.object_height, u)
-    return encoder.measure_window(window, corner, canvas.shape, height=canvas.height)
+    placed = comp.place_bands(scenes, canvas, encoder.scene_config.object_height, u)
+    if placed is None:  # a warp after the shifts and rescales: it needs the window
+        window, corner = comp.place_window(scenes, canvas, encoder.scene_config.object_height, u)
+        return encoder.measure_window(window, corner, canvas.shape, height=canvas.height)
+    placed, offsets, (r0, r1, c0, c1) = placed
+    if offsets is None:  # the whole window
+        return encoder.measure_window(placed, (r0, c0), canvas.shape, height=canvas.height)
+    return encoder.measure_pasted(placed, offsets, (r0, r1, c0, c1), canvas.shape, height=canvas.height)
 
 
 def stored_embedding(encoder, canvas, windows: torch.Tensor, offsets: torch.Tensor) -> torch.Tensor:
@@ -113,10 +120,8 @@ def stored_embedding(encoder, canvas, windows: torch.Tensor, offsets: torch.Tens
     """
     h, w = windows.shape[-2:]
     offsets = offsets.to(windows.device, torch.long)
-    lo = offsets.amin(0)
-    hi = offsets.amax(0) + torch.tensor([h, w], device=offsets.device)
-    part = paste(windows, offsets - lo, (int(hi[0] - lo[0]), int(hi[1] - lo[1])))
-    return encoder.measure_window(part, (int(lo[0]), int(lo[1])), canvas.shape, height=canvas.height)
+    (r0, c0), (r1, c1) = offsets.amin(0).tolist(), (offsets.amax(0) + torch.tensor([h, w], device=offsets.device)).tolist()
+    return encoder.measure_pasted(windows, offsets, (r0, r1, c0, c1), canvas.shape, height=canvas.height)
 
 
 @torch.no_grad()

@@ -97,3 +97,37 @@ def test_measure_window_outside_the_scene_is_one_clear_error():
     enc = _encoder(LearnedSLM)
     with pytest.raises(ConfigError, match=r"^window = \(30, 40, 14, 17\): must lie within the 40 x 52 scene"):
         enc.measure_window(torch.rand(2, 1, 14, 17), (30, 40), (40, 52), 0.05)
+
+
+@pytest.mark.parametrize("dtype", ["float64", "bfloat16"])
+@pytest.mark.parametrize("box", [(7, 21, 30, 47), (1, 40, 0, 51)], ids=["small part", "most of the scene"])
+@pytest.mark.parametrize("cut", [True, False])
+def test_measure_pasted_is_measure_window_of_the_pasted_part_bit_for_bit(cut, box, dtype):
+    """Each example's own window at its own offset inside a part: the same numbers, exactly, as pasting them on
+    the part and measuring it as one window (the stored and redrawn transforms' path before measure_pasted), on
+    the part's own operator (a small part), the whole scene's (most of the scene) or measure's own path."""
+    from optoenc.encoders.imaging import paste
+
+    enc = _encoder(LearnedSLM, dtype if dtype == "float64" else "float32")
+    if dtype == "bfloat16":
+        enc.operator_dtype = torch.bfloat16
+    enc.support_regions = cut
+    r0, r1, c0, c1 = box
+    g = torch.Generator().manual_seed(3)
+    h, w = 5, 6
+    offsets = torch.stack([torch.randint(r0, r1 - h + 1, (200,), generator=g),
+                           torch.randint(c0, c1 - w + 1, (200,), generator=g)], 1)
+    offsets[0], offsets[1] = torch.tensor([r0, c0]), torch.tensor([r1 - h, c1 - w])  # the part is their bounding box
+    windows = torch.rand(200, 1, h, w, generator=g, dtype=torch.float64 if dtype == "float64" else torch.float32)
+    part = paste(windows, offsets - torch.tensor([r0, c0]), (r1 - r0, c1 - c0))
+    assert (enc._cheaper_region(200, (40, 52), 0.05, box) == box) == (box[0] == 7)  # both branches taken
+    assert torch.equal(enc.measure_pasted(windows, offsets, box, (40, 52), 0.05),
+                       enc.measure_window(part, (r0, c0), (40, 52), 0.05))
+
+
+def test_measure_pasted_outside_its_part_is_one_clear_error():
+    from optoenc.errors import ConfigError
+
+    enc = _encoder(LearnedSLM)
+    with pytest.raises(ConfigError, match=r"^windows = \(\(3, 4\), \(8, 10\)\): must lie within the part \(5, 20, 0, 30\)"):
+        enc.measure_pasted(torch.rand(2, 1, 5, 6), torch.tensor([[3, 4], [3, 4]]), (5, 20, 0, 30), (40, 52), 0.05)

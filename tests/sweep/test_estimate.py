@@ -18,8 +18,8 @@ pytestmark = pytest.mark.filterwarnings("ignore:optics sampling")
 def counted(monkeypatch):
     """How many scenes went through the augmentations."""
     seen = []
-    real = Compose.place_window  # Compose.place goes through it too
-    monkeypatch.setattr(Compose, "place_window", lambda self, x, *a, **k: seen.append(len(x)) or real(self, x, *a, **k))
+    real = Compose._place  # Compose.place, place_window and place_bands all go through it
+    monkeypatch.setattr(Compose, "_place", lambda self, x, *a, **k: seen.append(len(x)) or real(self, x, *a, **k))
     return seen
 
 
