@@ -14,11 +14,12 @@ from torch import nn
 
 from .encoders.base import _coerce
 from .settings import Documented, Settings, setting
+from .whitening import Whiten
 
 __all__ = ["DecoderConfig", "Decoder", "Logistic", "FCNN", "EMBEDDING_NORMS"]
 
 #: Pre-decoder normalisations of the embedding.
-EMBEDDING_NORMS = ("auto", "none", "standardize", "batchnorm_relu", "batchnorm")
+EMBEDDING_NORMS = ("auto", "none", "standardize", "batchnorm_relu", "batchnorm", "whiten", "whiten_batchnorm_relu")
 
 
 @dataclass
@@ -30,7 +31,9 @@ class DecoderConfig(Settings):
         "normalisation of the embedding before the decoder: 'standardize' (scalar mean/std of the "
         "training embeddings, the paper's fixed-encoder protocol), 'batchnorm_relu' (the paper's learned-SLM "
         "protocol), 'batchnorm' (per-pixel BatchNorm1d without the ReLU, which zeroes every below-average "
-        "reading), 'none'; 'auto' picks batchnorm_relu for learnable encoders, standardize otherwise",
+        "reading), 'whiten' (ZCA whitening from running statistics of the noisy embedding: a preconditioner, the "
+        "same functions as 'standardize' for a decoder that starts linear), 'whiten_batchnorm_relu' (whitening, then "
+        "the paper's BatchNorm and ReLU), 'none'; 'auto' picks batchnorm_relu for learnable encoders, standardize otherwise",
         choices=EMBEDDING_NORMS,
     )
 
@@ -84,6 +87,10 @@ class Decoder(Documented, nn.Module):
             self.norm = nn.Sequential(nn.BatchNorm1d(self.in_features), nn.ReLU())
         elif norm == "batchnorm":
             self.norm = nn.BatchNorm1d(self.in_features)
+        elif norm == "whiten":
+            self.norm = Whiten(self.in_features)
+        elif norm == "whiten_batchnorm_relu":
+            self.norm = nn.Sequential(Whiten(self.in_features), nn.BatchNorm1d(self.in_features), nn.ReLU())
         else:
             self.norm = nn.Identity()
         self.register_buffer("mean", torch.zeros(()))
