@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import subprocess
 import sys
 from pathlib import Path
@@ -178,3 +179,25 @@ def test_conditioning_compares_three_normalisations_of_one_fixed_embedding(tmp_p
     assert head and float(head[1]) > 0.8 and float(head[2]) > 1e5, proc.stdout
     for name in ("scalar", "per pixel", "whitened"):
         assert re.search(rf"{name}\s*: test [0-9.]+ % \(epoch 0 selected", proc.stdout), proc.stdout
+
+
+def test_whiten_table_puts_the_committed_whitening_cells_beside_the_tables(capsys):
+    """examples/paper/whiten_table.py reads docs/results: each printed figure is the CSV's own (the learned SLM's
+    6x8 logistic cell: Table 1's 88.87, whitened from whiten.csv), and --table1 has a row per whitened cell."""
+    import csv
+
+    spec = importlib.util.spec_from_file_location("whiten_table", EXAMPLES / "paper" / "whiten_table.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    results = EXAMPLES.parent / "docs" / "results"
+    wh = list(csv.DictReader(open(results / "whiten.csv")))
+    mod.main([])
+    out = capsys.readouterr().out.splitlines()
+    row = [r for r in wh if (r["encoder"], r["embedding"], r["decoder"], r["variant"]) == ("learned_slm", "6x8", "logistic", "")][0]
+    line = [x for x in out if x.startswith("| 1 | 6x8 | logistic | original |")][0]
+    cols = [c.strip() for c in line.strip("|").split("|")]
+    assert cols[4] == "91.90" and cols[5] == "88.87" and cols[6] == f"{float(row['test_acc']):.2f}"
+    assert len([x for x in out if x.startswith("| ")]) == 2 + sum(r["encoder"] == "learned_slm" and not r["variant"] for r in wh)
+    mod.main(["--table1"])
+    out = capsys.readouterr().out.splitlines()
+    assert len(out) == 2 + len(list(csv.DictReader(open(results / "table1_whiten.csv"))))
