@@ -3,7 +3,8 @@
 For each learned-SLM cell of the whitening sweep (examples/paper/whiten.yaml, ``whiten_batchnorm_relu``)
 it prints the paper's figure, the table's learned SLM (BatchNorm+ReLU; mean over the table's seeds), the
 whitened learned SLM (and its re-simulation at the ``reference`` preset where the cell has one), the table's
-fixed SLM (``standardize``), the whitened fixed SLM, and the learned-minus-fixed margin both ways.
+fixed SLM (``standardize``), the whitened fixed SLM (from whiten.csv, else table1_whiten.csv), and the
+learned-minus-fixed margin both ways.
 
 With ``--table1`` it prints Table 1's fixed encoders instead (docs/results/table1_whiten.csv, from
 examples/paper/table1_whiten.yaml): the table's figure (``standardize``), the whitened one, the paper's
@@ -41,6 +42,7 @@ def main(argv=None) -> None:
     if args.table1:
         return _table1(args.results, tables["1"])
     wh = _rows(args.results / "whiten.csv")
+    t1w = _rows(args.results / "table1_whiten.csv") if (args.results / "table1_whiten.csv").exists() else []
 
     def table_acc(encoder, emb, dec, transform):
         if transform == "original":
@@ -54,6 +56,8 @@ def main(argv=None) -> None:
         rows = [r for r in wh if (r["encoder"], r["embedding"], r["decoder"], r["transform"]) == (encoder, emb, dec, transform)
                 and r["augment_mode"] in ("once", "") and
                 (r["variant"] == "" if encoder == "learned_slm" else r["variant"] == "embedding_norm=whiten")]
+        if not rows and encoder != "learned_slm" and transform == "original":  # Table 1's whitened fixed encoders
+            rows = [r for r in t1w if (r["encoder"], r["embedding"], r["decoder"]) == (encoder, emb, dec)]
         return rows[0] if rows else None
 
     print("| table | embedding | decoder | transform | paper | learned (table) | learned, whitened | "
