@@ -17,7 +17,9 @@ a full-rank covariance of a 768-pixel embedding). Every ``refresh`` training ste
 them and ``W`` is recomputed; evaluation uses the latest. The default ``refresh`` keeps the cost
 small beside a training step: every step up to 64 pixels (an eigendecomposition of 48 x 48 takes
 0.26 ms on one CPU thread), every ``n // 24`` steps above (192 x 192: 2.7 ms, every 8 steps;
-768 x 768: 99 ms, every 32 steps).
+768 x 768: 99 ms, every 32 steps). The map itself is a float32 product (``n x n``, outside autocast:
+a bfloat16 ZCA matrix would lose the small-variance directions it exists for); at 768 pixels it costs
+about as much as the FCNN's first layer (docs/results.md, "Whitening the embedding").
 """
 
 from __future__ import annotations
