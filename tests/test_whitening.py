@@ -1,12 +1,11 @@
-"""ZCA whitening of the embedding (optoenc/whitening.py): statistics, the map, and why it is there."""
+"""ZCA whitening of the embedding (optoenc.decoders.Whiten): statistics, the map, and why it is there."""
 
 from __future__ import annotations
 
 import pytest
 import torch
 
-from optoenc.decoders import FCNN, Logistic
-from optoenc.whitening import Whiten
+from optoenc.decoders import FCNN, Logistic, Whiten
 
 
 def _correlated(n: int, count: int, seed: int = 0, spread: float = 1e3) -> tuple[torch.Tensor, torch.Tensor]:

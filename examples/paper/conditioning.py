@@ -36,7 +36,7 @@ def main(argv=None) -> None:
     from optoenc.config import compose
     from optoenc.encoders.imaging import add_noise
     from optoenc.training.run import build
-    from optoenc.whitening import Whiten
+    from optoenc.decoders import Whiten
 
     torch.set_num_threads(args.threads)
     a, b = args.embedding.split("x")
