@@ -190,7 +190,7 @@ def test_whiten_table_puts_the_committed_whitening_cells_beside_the_tables(capsy
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     results = EXAMPLES.parent / "docs" / "results"
-    wh = list(csv.DictReader(open(results / "whiten.csv")))
+    wh = list(csv.DictReader((results / "whiten.csv").read_text().splitlines()))
     mod.main([])
     out = capsys.readouterr().out.splitlines()
     row = [r for r in wh if (r["encoder"], r["embedding"], r["decoder"], r["variant"]) == ("learned_slm", "6x8", "logistic", "")][0]
@@ -200,4 +200,4 @@ def test_whiten_table_puts_the_committed_whitening_cells_beside_the_tables(capsy
     assert len([x for x in out if x.startswith("| ")]) == 1 + sum(r["encoder"] == "learned_slm" and not r["variant"] for r in wh)
     mod.main(["--table1"])
     out = capsys.readouterr().out.splitlines()
-    assert len(out) == 2 + len(list(csv.DictReader(open(results / "table1_whiten.csv"))))
+    assert len(out) == 2 + len(list(csv.DictReader((results / "table1_whiten.csv").read_text().splitlines())))

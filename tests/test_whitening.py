@@ -27,11 +27,12 @@ def test_inverse_root_whitens_its_covariance_and_is_symmetric():
 
 
 def test_floor_bounds_the_gain_on_a_rank_deficient_covariance():
-    v = torch.randn(6, 2, dtype=torch.float64)
+    v = torch.randn(6, 2, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
     cov = v @ v.T  # rank 2: four zero eigenvalues
     w = Whiten.inverse_root(cov, floor=1e-6)
     assert torch.isfinite(w).all()
-    # The largest gain is 1 / sqrt(floor * top eigenvalue), and it is reached.
+    # The largest gain is 1 / sqrt(floor * top eigenvalue), and it is reached (rtol 1e-6: the floored
+    # eigenvalues are exact; the rest is float64 rounding of one eigendecomposition, ~1e-13 relative).
     top = torch.linalg.eigvalsh(cov).max()
     gain = torch.linalg.eigvalsh(w).max()
     torch.testing.assert_close(gain, (1e-6 * top).rsqrt(), rtol=1e-6, atol=0)
@@ -42,8 +43,9 @@ def test_running_statistics_are_the_weighted_mixture_of_the_batches():
     b1 weight 1 - m and b2 weight m (each batch with its unbiased covariance): the exact EMA, not an approximation."""
     m = 0.3
     wh = Whiten(4, momentum=m, refresh=1).train()
-    b1 = torch.randn(50, 4, dtype=torch.float64) * 2 + 1
-    b2 = torch.randn(70, 4, dtype=torch.float64) - 3
+    g = torch.Generator().manual_seed(0)
+    b1 = torch.randn(50, 4, generator=g, dtype=torch.float64) * 2 + 1
+    b2 = torch.randn(70, 4, generator=g, dtype=torch.float64) - 3
     wh(b1)
     wh(b2)
     mu1, mu2 = b1.mean(0), b2.mean(0)
@@ -51,6 +53,7 @@ def test_running_statistics_are_the_weighted_mixture_of_the_batches():
     cov = (1 - m) * (torch.cov(b1.T) + torch.outer(mu1 - mean, mu1 - mean)) + m * (
         torch.cov(b2.T) + torch.outer(mu2 - mean, mu2 - mean)
     )
+    # The same sums in another order, in float64, of values of order 10: rounding ~1e-14, so 1e-12 is loose.
     torch.testing.assert_close(wh.running_mean, mean, rtol=0, atol=1e-12)
     torch.testing.assert_close(wh.running_cov, cov, rtol=0, atol=1e-12)
     assert int(wh.steps) == 2
@@ -94,13 +97,31 @@ def test_state_survives_a_checkpoint_round_trip():
 
 def test_gradient_reaches_the_embedding_through_the_map():
     wh = Whiten(5, momentum=1.0).train()
-    x = torch.randn(40, 5) * torch.tensor([1.0, 2, 3, 4, 5]) + 2
+    x = torch.randn(40, 5, generator=torch.Generator().manual_seed(0)) * torch.tensor([1.0, 2, 3, 4, 5]) + 2
     wh(x)  # statistics from x
     wh.eval()
     x = x.clone().requires_grad_(True)
     g = torch.randn(40, 5)
     (wh(x) * g).sum().backward()
+    # float32 products of five terms: rounding ~1e-7 relative, so 1e-6 holds and a missing or transposed W fails.
     torch.testing.assert_close(x.grad, g @ wh.matrix.T, rtol=1e-6, atol=1e-6)
+
+
+def test_two_training_forwards_then_one_backward():
+    """A step may run the decoder twice before its backward (two views of a batch, summed losses). The second
+    forward updates the statistics and ``W``; the first forward's backward must still use the ``W`` it
+    multiplied by (an in-place update of the saved matrix failed with autograd's version check)."""
+    g = torch.Generator().manual_seed(0)
+    wh = Whiten(4, refresh=1).train()
+    x1 = torch.randn(30, 4, generator=g, requires_grad=True)
+    x2 = torch.randn(30, 4, generator=g) * 3
+    y1 = wh(x1)
+    w1 = wh.matrix.clone()
+    wh(x2)
+    assert not torch.equal(wh.matrix, w1)  # the second forward did refresh W
+    u = torch.randn(30, 4, generator=g)
+    (y1 * u).sum().backward()
+    torch.testing.assert_close(x1.grad, u @ w1.T, rtol=1e-6, atol=1e-6)  # as above
 
 
 @pytest.mark.parametrize("kind, layers", [("whiten", 1), ("whiten_batchnorm_relu", 3)])
