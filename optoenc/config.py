@@ -57,6 +57,11 @@ class TrainerConfig(Settings):
         "masks are sigmoid logits: at 1e-2 a sub-pixel can cross its range within an epoch, at 1e-3 it barely moves",
         gt=0, le=10,
     )
+    encoder_lr_schedule: str = setting(
+        "constant", "the encoder's learning rate over the epochs: 'constant', or 'cosine' (annealed from encoder_lr "
+        "to 0 by the last epoch, so the decoder ends fitted to a settled mask); the decoder's stays lr",
+        choices=("constant", "cosine"),
+    )
     precompute: bool = setting(True, "encode the dataset once for fixed, non-augmented encoders (noise still drawn per batch)")
     cache: bool = setting(True, "cache precomputed embeddings on disk (keyed by everything that affects them)")
     cache_dir: Optional[str] = setting(None, "embedding cache folder (null: $OPTOENC_CACHE_DIR or ~/.cache/optoenc)")

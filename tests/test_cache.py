@@ -62,6 +62,11 @@ def test_any_physical_change_changes_the_key(cache_root, encoder, change):
     assert key_for(encoder, [change]) != key_for(encoder)
 
 
+def test_training_only_sensor_settings_leave_the_key(cache_root):
+    # the noise level's gradient changes how a learned encoder trains, never an embedding: caches stay valid
+    assert key_for("fixed_slm", ["sensor.noise_level_gradient=true"]) == key_for("fixed_slm")
+
+
 def test_psf_file_contents_change_the_key(cache_root, tmp_path):
     psf = np.zeros((30, 40))
     psf[10:20, 10:30] = 1.0

@@ -157,6 +157,31 @@ def test_noise_is_differentiable_and_poisson_is_straight_through():
     torch.testing.assert_close(x.grad, torch.ones_like(x))
 
 
+def test_noise_level_gradient_is_the_exact_derivative():
+    # sigma(signal) = std over the example's pixels x 10^(-snr/20): with level_gradient the backward pass is the
+    # derivative of signal + sigma(signal) * noise for fixed draws (gradcheck, float64: its default tolerances
+    # hold for a smooth function of 16 inputs); without it, sigma is a constant there and the gradient the
+    # identity, which gradcheck refuses at 10 dB (the level's share of the derivative is 0.3 x the draws).
+    x = (torch.rand(2, 1, 4, 4, dtype=DT) + 0.5).requires_grad_()
+    n = torch.randn(x.shape, generator=torch.Generator().manual_seed(3), dtype=DT)
+    assert torch.autograd.gradcheck(lambda v: im.add_noise(v, 10.0, noise=n, level_gradient=True), (x,))
+    assert not torch.autograd.gradcheck(lambda v: im.add_noise(v, 10.0, noise=n), (x,), raise_exception=False)
+    # the values are the same either way, to the bit
+    assert torch.equal(im.add_noise(x, 10.0, noise=n, level_gradient=True), im.add_noise(x, 10.0, noise=n))
+
+
+def test_noise_level_gradient_is_finite_at_zero_light():
+    # a constant (all-black) example has zero variance, where sqrt's derivative is infinite: its sigma's gradient
+    # must be 0 (the reading's gradient the identity), never NaN; the lit example beside it keeps its own.
+    x = torch.stack([torch.zeros(1, 4, 4, dtype=DT), torch.rand(1, 4, 4, dtype=DT)]).requires_grad_()
+    out = im.add_noise(x, 40.0, noise=torch.randn(x.shape, dtype=DT), level_gradient=True)
+    out.sum().backward()
+    assert torch.equal(out[0], x[0].detach())
+    assert torch.isfinite(x.grad).all()
+    torch.testing.assert_close(x.grad[0], torch.ones(1, 4, 4, dtype=DT), rtol=0, atol=0)
+    assert not torch.allclose(x.grad[1], torch.ones(1, 4, 4, dtype=DT))
+
+
 def test_quantize_rounds_to_levels():
     x = torch.tensor([[0.0, 0.26, 0.5, 1.0]])
     q = im.quantize(x, 2, full_scale=1.0)  # levels 0, 1/3, 2/3, 1

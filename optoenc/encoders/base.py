@@ -611,7 +611,8 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         caller drew them (given only with ``sigma``); see :func:`~optoenc.encoders.imaging.add_noise`.
         """
         s = self.sensor
-        out = imaging.add_noise(clean, s.snr_db, s.noise, s.photons, s.read_noise, generator, sigma, noise)
+        out = imaging.add_noise(clean, s.snr_db, s.noise, s.photons, s.read_noise, generator, sigma, noise,
+                                level_gradient=s.noise_level_gradient)
         if s.adc_bits is not None:
             out = imaging.quantize(out, s.adc_bits)
         return out

@@ -46,6 +46,11 @@ class SensorConfig(Settings):
     color: str = setting("gray", "sensor colour: 'gray' (one channel) or 'rgb'", choices=("gray", "rgb"))
     noise: str = setting("gaussian", "noise model", choices=("gaussian", "poisson", "none"))
     snr_db: Optional[float] = setting(devices.SNR_DB, "SNR of the gaussian noise (null: no noise)", unit="dB", ge=-100, le=300)
+    noise_level_gradient: bool = setting(
+        False, "gaussian model: the noise level (set by the example's own variance through snr_db) passes gradient "
+        "to the encoder, the exact derivative of the noisy reading; false: the level is a constant in the backward "
+        "pass. Only learned encoders' training differs; the values, and fixed encoders, are the same either way",
+    )
     photons: float = setting(1e4, "photons at the brightest pixel (poisson model)", gt=0)
     read_noise: float = setting(0.0, "read noise (poisson model)", unit="e-", ge=0)
     adc_bits: Optional[int] = setting(None, "ADC bit depth (null: no quantisation)", ge=1, le=32)

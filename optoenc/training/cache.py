@@ -68,6 +68,11 @@ def _probe_scenes(scenes: torch.Tensor | None, channels: int, shape: tuple[int, 
     return torch.cat([scenes[:_PROBE].to(torch.float64), rand])
 
 
+#: Sensor settings that change how a learned encoder trains, never an embedding: not part of the key (a cache
+#: written before they existed stays valid).
+_TRAINING_ONLY = ("noise_level_gradient",)
+
+
 @torch.no_grad()
 def embedding_key(encoder, dataset_config: Any, dataset_token: str = "", scenes: torch.Tensor | None = None) -> str:
     """A hex digest of everything that determines ``encoder``'s embeddings of a dataset.
@@ -94,7 +99,7 @@ def embedding_key(encoder, dataset_config: Any, dataset_token: str = "", scenes:
         "encoder_config": to_dict(encoder.config),
         "encoder_token": token,
         "scene": to_dict(encoder.scene_config),
-        "sensor": to_dict(encoder.sensor),
+        "sensor": {k: v for k, v in to_dict(encoder.sensor).items() if k not in _TRAINING_ONLY},
         "fidelity": encoder.knobs.to_dict(),
         "embedding_shape": list(encoder.output_shape),
         "dataset": to_dict(dataset_config),

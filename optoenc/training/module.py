@@ -37,6 +37,8 @@ class EncoderClassifier(L.LightningModule):
         canvas: canvas geometry for augmentations (from :mod:`optoenc.augment`);
             ``None`` when there are none.
         lr: Adam learning rate; ``encoder_lr`` for the encoder (default ``lr``).
+        encoder_lr_schedule: ``'constant'``, or ``'cosine'``: the encoder's rate annealed per epoch,
+            ``encoder_lr * (1 + cos(pi e / max_epochs)) / 2`` at epoch ``e`` (the decoder's stays ``lr``).
         seed: run seed (per-epoch reseeding, see :data:`SEED_STRIDE`).
         precomputed: batches hold noise-free embeddings, not scenes (fixed
             encoders encode the dataset once); noise is still drawn per batch.
@@ -60,6 +62,7 @@ class EncoderClassifier(L.LightningModule):
         canvas=None,
         lr: float = 1e-3,
         encoder_lr: float | None = None,
+        encoder_lr_schedule: str = "constant",
         seed: int = 0,
         precomputed: bool = False,
         augment_eval: bool = True,
@@ -73,6 +76,7 @@ class EncoderClassifier(L.LightningModule):
         self.augmentations = nn.ModuleList(augmentations)
         self.canvas = canvas
         self.lr, self.encoder_lr, self.seed = lr, encoder_lr or lr, int(seed)
+        self.encoder_lr_schedule = encoder_lr_schedule
         self.precomputed = precomputed
         self.augment_eval = augment_eval
         self.stored_canvases = stored_canvases
@@ -208,10 +212,30 @@ class EncoderClassifier(L.LightningModule):
             if p.requires_grad:
                 enc.setdefault(float(scales.get(name, 1.0)), []).append(p)
         for scale, params in sorted(enc.items(), reverse=True):  # the encoder's own rate first
-            groups.append({"params": params, "lr": self.encoder_lr * scale})
+            groups.append({"params": params, "lr": self.encoder_lr * scale, "encoder": True})
         if self.adversary is not None:
             groups.append({"params": list(self.adversary.parameters()), "lr": self.adversary.lr})
-        return _adam(groups)
+        opt = _adam(groups)
+        if self.encoder_lr_schedule == "constant" or not enc:
+            return opt
+        epochs = max(int(self.trainer.max_epochs or 1), 1)
+        factors = [_cosine(epochs) if g.get("encoder") else _constant for g in opt.param_groups]
+        sched = torch.optim.lr_scheduler.LambdaLR(opt, factors)
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "epoch"}}
+
+
+def _constant(epoch: int) -> float:
+    return 1.0
+
+
+class _cosine:
+    """Picklable cosine factor ``(1 + cos(pi e / epochs)) / 2`` of epoch ``e`` (1 at the first epoch)."""
+
+    def __init__(self, epochs: int):
+        self.epochs = epochs
+
+    def __call__(self, epoch: int) -> float:
+        return 0.5 * (1.0 + math.cos(math.pi * min(epoch, self.epochs) / self.epochs))
 
 
 def _reseed(seed: int) -> None:

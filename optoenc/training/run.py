@@ -144,6 +144,7 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
         canvas=canvas,
         lr=run.trainer.lr,
         encoder_lr=run.trainer.encoder_lr,
+        encoder_lr_schedule=run.trainer.encoder_lr_schedule,
         seed=run.seed,
         precomputed=precomputed,
         adversary=obj,

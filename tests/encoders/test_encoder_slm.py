@@ -160,6 +160,23 @@ def test_learned_gradcheck_float64():
     assert torch.autograd.gradcheck(embed, (sub,), eps=1e-6, atol=1e-8, rtol=1e-5)
 
 
+@pytest.mark.parametrize("noise_level_gradient", [False, True])
+def test_learned_noise_level_gradient_reaches_the_mask(noise_level_gradient):
+    # sensor.noise_level_gradient routes the noise level's dependence on the embedding back to the mask: the
+    # noisy readings are the same to the bit, the mask's gradient is the clean one plus the level's share.
+    scene = torch.rand(4, 1, 8, 6, generator=torch.Generator().manual_seed(0))
+    grads, outs = {}, {}
+    for flag in (False, noise_level_gradient):
+        enc = LearnedSLM(fidelity=SMALL["fidelity"], sensor={**SMALL["sensor"], "snr_db": 10.0,
+                                                              "noise_level_gradient": flag})
+        out = enc.add_sensor_noise(enc.measure(scene), generator=torch.Generator().manual_seed(5))
+        (out * torch.linspace(-1, 1, out.numel()).reshape(out.shape)).sum().backward()
+        grads[flag], outs[flag] = enc.logits.grad.clone(), out.detach()
+    assert torch.equal(outs[False], outs[noise_level_gradient])
+    same = torch.equal(grads[False], grads[noise_level_gradient])
+    assert same != noise_level_gradient  # a 10-dB level's share of the gradient is far above rounding
+
+
 def test_learned_psf_recomputed_once_per_step_and_d2():
     enc = LearnedSLM({"learn_d2": True}, **SMALL)
     enc.train()
