@@ -10,7 +10,13 @@ With ``--table1`` it prints Table 1's fixed encoders instead (docs/results/table
 examples/paper/table1_whiten.yaml): the table's figure (``standardize``), the whitened one, the paper's
 point-sampling sensor's (sampling.csv, where measured) and the paper's.
 
-    python examples/paper/whiten_table.py [--results docs/results] [--table1]
+With ``--select`` it chooses, for each learned-SLM cell of Tables 1 and 3 (seed 0, Table 3's transforms drawn
+once), the decoder variant with the higher *validation* accuracy between the table's (BatchNorm+ReLU) and the
+whitened one (``whiten_batchnorm_relu``), reads both from the cells' ``summary.json`` under
+docs/results/sweep_cells/{table1,table3,whiten}, and prints the selected variant's test accuracy against the
+paper's: a hyperparameter chosen on validation, as the epoch is.
+
+    python examples/paper/whiten_table.py [--results docs/results] [--table1 | --select]
 """
 
 from __future__ import annotations
@@ -37,7 +43,10 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--results", type=Path, default=Path(__file__).resolve().parents[2] / "docs" / "results")
     ap.add_argument("--table1", action="store_true", help="Table 1's fixed encoders, whitened (table1_whiten.csv)")
+    ap.add_argument("--select", action="store_true", help="the learned SLM's decoder variant chosen on validation")
     args = ap.parse_args(argv)
+    if args.select:
+        return _select(args.results)
     tables = {"1": _rows(args.results / "table1.csv"), "3": _rows(args.results / "table3.csv")}
     if args.table1:
         return _table1(args.results, tables["1"])
@@ -92,6 +101,45 @@ def _table1(results: Path, table1: list[dict[str, str]]) -> None:
         t, w = acc(table1, r), _num(r["test_acc"])
         print(f"| {r['encoder']} | {r['embedding']} | {r['decoder']} | {_fmt(_num(r['paper_acc']))} | {_fmt(t)} | "
               f"{_fmt(w)} | {_fmt(w - t if None not in (w, t) else None, True)} | {_fmt(acc(sampling, r, 'point_test_acc'))} |")
+
+
+def _summary(cell: Path) -> dict | None:
+    import json
+
+    try:
+        return json.loads((cell / "summary.json").read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def _select(results: Path) -> None:
+    cells = results / "sweep_cells"
+    paper = {(r["embedding"], r["decoder"], r.get("transform", "original")): _num(r["paper_acc"])
+             for name in ("table1.csv", "table3.csv") for r in _rows(results / name) if r["encoder"] == "learned_slm"
+             and r.get("augment_mode", "once") in ("once", "")}
+    print("| embedding | decoder | transform | paper | table: val | table: test | whitened: val | whitened: test | "
+          "selected | selected: test | minus paper |")
+    print("|" + "---|" * 11)
+    below = 0
+    for (emb, dec, transform), p in paper.items():
+        if transform == "original":
+            table = cells / "table1" / f"encoder=learned_slm,embedding={emb},decoder={dec},seed=0,verify_preset=reference"
+            white = cells / "whiten" / f"embedding={emb},decoder={dec},verify_preset=reference"
+        else:
+            suffix = ",operator_dtype=auto,precision=auto" if emb == "24x32" else ""
+            table = cells / "table3" / f"encoder=learned_slm,embedding={emb},augment={transform},augment_draw=once{suffix}"
+            white = cells / "whiten" / f"embedding={emb},decoder=fcnn,augment={transform},augment_draw=once{suffix}"
+        t, w = _summary(table), _summary(white)
+        if t is None:
+            print(f"| {emb} | {dec} | {transform} | {_fmt(p)} | not run: {table} |")
+            continue
+        tv, tt = 100 * t["val_acc"], 100 * t["test_acc"]
+        wv, wt = (None, None) if w is None else (100 * w["val_acc"], 100 * w["test_acc"])
+        name, acc = ("whitened", wt) if wv is not None and wv > tv else ("table" if w else "table (whitened not run)", tt)
+        below += acc < p
+        print(f"| {emb} | {dec} | {transform} | {_fmt(p)} | {_fmt(tv)} | {_fmt(tt)} | {_fmt(wv)} | {_fmt(wt)} | "
+              f"{name} | {_fmt(acc)} | {_fmt(acc - p, True)} |")
+    print(f"\n{below} cells below the paper with the variant chosen on validation (seed 0)")
 
 
 if __name__ == "__main__":
