@@ -200,3 +200,29 @@ def test_cosine_encoder_schedule_anneals_the_mask_only_and_resumes(tmp_path, qui
     flat = _Rates()
     fit(constant, tmp_path / "constant", callbacks=[flat])
     assert [r[1] for r in flat.rates] == [0.01, 0.01]
+
+
+class _Range(L.Callback):
+    """The projected amplitudes' range after every training step."""
+
+    def __init__(self):
+        self.ranges = []
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx):
+        a = pl_module.encoder.amplitudes.detach()
+        self.ranges.append((a.min().item(), a.max().item(), ((a == 0) | (a == 1)).float().mean().item()))
+
+
+@pytest.mark.filterwarnings("ignore")  # the small grid's sampling warning; Lightning's few-batches notice
+def test_trainer_projects_the_learned_slm_amplitudes_after_every_step(tmp_path, quick):
+    """encoder.parameterization=projected: the module's optimizer_step clamps the amplitudes into [0, 1] after
+    each step; at the encoder's rate 10 every Adam step (~10) crosses a bound, so without the projection they
+    would leave [0, 1] at the first step."""
+    run = compose(overrides=quick + ["trainer.max_epochs=1", "encoder.parameterization=projected", "trainer.encoder_lr=10",
+                                     "sensor.embedding=[3,4]", "fidelity.grid=[48,64]", "trainer.limit_train_batches=2"],
+                  names={"encoder": "learned_slm", "decoder": "logistic"})
+    seen = _Range()
+    fit(run, tmp_path / "run", callbacks=[seen])
+    assert len(seen.ranges) == 2
+    for lo, hi, at_bounds in seen.ranges:
+        assert lo >= 0 and hi <= 1 and at_bounds > 0.5

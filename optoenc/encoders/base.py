@@ -144,9 +144,14 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         """Learning rate of named parameters relative to ``trainer.encoder_lr`` (others: 1).
 
         Adam moves every parameter by about its learning rate each step, whatever the size of its
-        gradient: a scalar such as a log-distance needs a smaller one than a mask's logits.
+        gradient (while that stays above Adam's ``eps``, 1e-8): a scalar such as a log-distance needs a
+        smaller one than a mask's logits.
         """
         return {}
+
+    def constrain_(self) -> None:
+        """Bring constrained parameters back into their domain after an optimiser step (projected gradient);
+        the trainer calls it after every step. Default: nothing to do."""
 
     def __init__(
         self,

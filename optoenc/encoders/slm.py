@@ -58,6 +58,12 @@ class LearnedSLMConfig(SLMConfig):
         0.01, "learn_d2: learning rate of s = log(d2 / d2_init) relative to trainer.encoder_lr (Adam moves s by "
         "about its rate each step: at the mask's 1e-2, d2 drifted from 4 to 0.3 mm within one epoch)", gt=0, le=1,
     )
+    parameterization: str = setting(
+        "sigmoid", "how the optimiser holds each sub-pixel's amplitude w in [0, 1]: 'sigmoid' (w = sigmoid(logit), "
+        "logit unconstrained; a sub-pixel driven to |logit| ~ 10 gets gradients below Adam's eps and stays there) or "
+        "'projected' (w itself, clamped into [0, 1] after every optimiser step; its gradient never shrinks at the "
+        "bounds)", choices=("sigmoid", "projected"),
+    )
     patterns: int = setting(
         1, "K patterns learned jointly with one decoder; each capture displays one, drawn at random "
         "(variable-pattern defence, docs/privacy.md); 1: a single pattern", ge=1, le=64
@@ -166,10 +172,17 @@ class FixedSLM(_SLMBase):
 class LearnedSLM(PatternSet, _SLMBase):
     """ST7735R LCD whose 1122 sub-pixel amplitudes (and optionally d2) are learned end to end.
 
-    Parameterisation: amplitude ``w = sigmoid(logit)`` of an unconstrained
-    ``logit`` per active sub-pixel, so ``w`` stays in ``(0, 1)`` with a
-    non-zero gradient ``w (1 - w)`` for every finite logit (no clamping in
-    forward). With ``quantize`` the displayed value is rounded to the panel's
+    Parameterisation (``parameterization``): by default amplitude ``w = sigmoid(logit)``
+    of an unconstrained ``logit`` per active sub-pixel, so ``w`` stays in ``(0, 1)``
+    with a non-zero gradient ``w (1 - w)`` for every finite logit (no clamping in
+    forward). Non-zero is not enough for Adam: at ``|logit| ~ 10`` the gradient
+    (``w (1 - w) ~ 5e-5`` times the amplitude's) falls below Adam's ``eps`` (1e-8),
+    whose steps then shrink in proportion, and the sub-pixel stays where it is
+    (three quarters of the 6x8 logistic cell's sub-pixels after 200 epochs).
+    ``'projected'``: the amplitudes ``w`` are the parameters themselves, clamped
+    into ``[0, 1]`` after every optimiser step (:meth:`constrain_`, projected
+    gradient; never inside forward), so a closed sub-pixel reopens as soon as its
+    gradient says so. With ``quantize`` the displayed value is rounded to the panel's
     levels with a straight-through gradient. With ``learn_d2``,
     ``d2 = config.d2 * exp(s)`` with a learned scalar ``s`` (always positive).
     The PSF is recomputed once per optimiser step (the base class caches it
@@ -186,17 +199,29 @@ class LearnedSLM(PatternSet, _SLMBase):
     def __init__(self, config=None, **kw):
         super().__init__(config, **kw)
         self.patterns = int(self.config.patterns)
-        p = self.initial_pattern(self.patterns).clamp(0.01, 0.99)
-        # float64 logits: the gradient w (1 - w) stays non-zero up to |logit| ~ 36 (float32: ~16).
-        self.logits = nn.Parameter(torch.log(p / (1 - p)))
+        self.projected = self.config.parameterization == "projected"
+        if self.projected:  # the amplitudes themselves, float64, kept in [0, 1] by constrain_()
+            self.amplitudes = nn.Parameter(self.initial_pattern(self.patterns).clone())
+        else:
+            p = self.initial_pattern(self.patterns).clamp(0.01, 0.99)
+            # float64 logits: the gradient w (1 - w) stays non-zero up to |logit| ~ 36 (float32: ~16).
+            self.logits = nn.Parameter(torch.log(p / (1 - p)))
         if self.config.learn_d2:
             self.log_d2_scale = nn.Parameter(torch.zeros((), dtype=self.logits.dtype))
         else:
             self.log_d2_scale = None
 
     def weights(self) -> torch.Tensor:
+        if self.projected:
+            return self._quantize(self.amplitudes if self.patterns == 1 else self.amplitudes[self.active_pattern])
         logits = self.logits if self.patterns == 1 else self.logits[self.active_pattern]
         return self._quantize(torch.sigmoid(logits))
+
+    def constrain_(self) -> None:
+        """``projected``: clamp the amplitudes into ``[0, 1]`` (after each optimiser step)."""
+        if self.projected:
+            with torch.no_grad():
+                self.amplitudes.clamp_(0.0, 1.0)
 
     def lr_scales(self) -> dict[str, float]:
         return {"log_d2_scale": float(self.config.d2_lr_scale)} if self.config.learn_d2 else {}

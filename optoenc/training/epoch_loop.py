@@ -112,6 +112,7 @@ def train_epoch(module, batch, batch_size: int, limit: int | float = 1.0) -> dic
             p.grad = None
         loss.backward()
         opt.step()
+        module.encoder.constrain_()
         count_steps += 1
     _count_steps(module.trainer, count_steps)
     if predicted:

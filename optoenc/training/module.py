@@ -204,6 +204,11 @@ class EncoderClassifier(L.LightningModule):
         _reseed(self.seed + 29 + 7 * batch_idx)
 
     # --------------------------------------------------------------- optimiser
+    def optimizer_step(self, *args, **kwargs) -> None:
+        """Lightning's step, then the encoder's constrained parameters projected back into their domain."""
+        super().optimizer_step(*args, **kwargs)
+        self.encoder.constrain_()
+
     def configure_optimizers(self):
         groups = [{"params": list(self.decoder.parameters()), "lr": self.lr}]
         scales = self.encoder.lr_scales()

@@ -177,6 +177,54 @@ def test_learned_noise_level_gradient_reaches_the_mask(noise_level_gradient):
     assert same != noise_level_gradient  # a 10-dB level's share of the gradient is far above rounding
 
 
+def test_saturated_sigmoid_sub_pixel_is_stuck_under_adam_and_a_projected_one_is_not():
+    # The measured failure (docs/results.md, session 31): a sub-pixel whose logit reached -10 gets its amplitude's
+    # gradient times w (1 - w) ~ 4.5e-5; for amplitude gradients of 1e-4 (a closed sub-pixel's were 5e-6 to 2e-2
+    # in training) that is 4.5e-9, below Adam's eps (1e-8), and 100 steps at the mask's rate (1e-2) barely move
+    # it. The projected amplitude, at the same place with the same gradient, moves ~lr a step, to the bound.
+    # (The loss is on the amplitudes directly: the PSF's per-colour power normalisation makes "more light" no
+    # objective through the optics.)
+    moved = {}
+    for kind in ("sigmoid", "projected"):
+        enc = LearnedSLM({"parameterization": kind}, **SMALL)
+        with torch.no_grad():
+            if kind == "sigmoid":
+                enc.logits.fill_(-10.0)
+            else:
+                enc.amplitudes.fill_(torch.sigmoid(torch.tensor(-10.0, dtype=torch.float64)).item())
+        w0 = enc.weights().detach().clone()
+        opt = torch.optim.Adam(enc.parameters(), lr=1e-2)
+        for _ in range(100):
+            opt.zero_grad()
+            (-1e-4 * enc.weights().sum()).backward()  # every amplitude should rise
+            opt.step()
+            enc.constrain_()
+        moved[kind] = (enc.weights().detach() - w0).mean().item()
+    assert moved["sigmoid"] < 1e-4  # w from 4.5e-5 to about 6e-5: Adam's eps dominates its denominator
+    assert moved["projected"] > 0.99  # 100 steps of 1e-2 up to the bound at 1
+
+
+def test_projected_amplitudes_stay_in_range_with_full_gradient_at_the_bounds():
+    two = LearnedSLM({"parameterization": "projected", "patterns": 2}, **SMALL)
+    assert not hasattr(two, "logits") and two.amplitudes.shape == (2, *two.block.shape)
+    torch.testing.assert_close(two.amplitudes.detach()[0], two.initial_pattern(), rtol=0, atol=0)  # pattern 0 as K = 1
+    enc = LearnedSLM({"parameterization": "projected"}, **SMALL)
+    opt = torch.optim.SGD(enc.parameters(), lr=1e6)  # a step far past both bounds
+    out = enc(torch.rand(2, 1, 8, 6), noise=False)
+    (out * torch.randn_like(out)).sum().backward()
+    opt.step()
+    enc.constrain_()
+    a = enc.amplitudes.detach()
+    assert a.min() >= 0 and a.max() <= 1 and ((a == 0) | (a == 1)).float().mean() > 0.5
+    # at a bound the gradient is the amplitude's own (no sigmoid factor): non-zero, and the weights are
+    # the amplitudes (no clamping inside forward)
+    enc.zero_grad()
+    out = enc(torch.rand(2, 1, 8, 6), noise=False)
+    (out * torch.linspace(-1, 1, out.numel()).reshape(out.shape)).sum().backward()
+    assert (enc.amplitudes.grad != 0).float().mean() > 0.9
+    assert torch.equal(enc.weights(), enc.amplitudes)
+
+
 def test_learned_psf_recomputed_once_per_step_and_d2():
     enc = LearnedSLM({"learn_d2": True}, **SMALL)
     enc.train()
