@@ -236,6 +236,8 @@ def test_whiten_table_select_takes_the_variant_with_the_higher_validation_accura
     shutil.copytree(results / "sweep_cells" / "table3", copy / "sweep_cells" / "table3")
     shutil.copytree(results / "sweep_cells" / "whiten", copy / "sweep_cells" / "whiten")
     # the decoder-rate cells left out: the choice is between the table's and the whitened one
+    mod.main(["--select", "--results", str(copy)])
+    below = int(capsys.readouterr().out.splitlines()[-1].split()[0])
     cell = copy / "sweep_cells" / "whiten" / "embedding=12x16,decoder=fcnn,verify_preset=reference" / "summary.json"
     summary = json.loads(cell.read_text())
     summary["val_acc"] = 0.5
