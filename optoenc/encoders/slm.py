@@ -178,7 +178,7 @@ class LearnedSLM(PatternSet, _SLMBase):
     forward). Non-zero is not enough for Adam: at ``|logit| ~ 10`` the gradient
     (``w (1 - w) ~ 5e-5`` times the amplitude's) falls below Adam's ``eps`` (1e-8),
     whose steps then shrink in proportion, and the sub-pixel stays where it is
-    (three quarters of the 6x8 logistic cell's sub-pixels after 200 epochs).
+    (1010 of the 6x8 logistic cell's 1122 sub-pixels after 200 epochs).
     ``'projected'``: the amplitudes ``w`` are the parameters themselves, clamped
     into ``[0, 1]`` after every optimiser step (:meth:`constrain_`, projected
     gradient; never inside forward), so a closed sub-pixel reopens as soon as its
@@ -207,7 +207,7 @@ class LearnedSLM(PatternSet, _SLMBase):
             # float64 logits: the gradient w (1 - w) stays non-zero up to |logit| ~ 36 (float32: ~16).
             self.logits = nn.Parameter(torch.log(p / (1 - p)))
         if self.config.learn_d2:
-            self.log_d2_scale = nn.Parameter(torch.zeros((), dtype=self.logits.dtype))
+            self.log_d2_scale = nn.Parameter(torch.zeros((), dtype=torch.float64))
         else:
             self.log_d2_scale = None
 

@@ -205,6 +205,10 @@ def test_saturated_sigmoid_sub_pixel_is_stuck_under_adam_and_a_projected_one_is_
 
 
 def test_projected_amplitudes_stay_in_range_with_full_gradient_at_the_bounds():
+    with_d2 = LearnedSLM({"parameterization": "projected", "learn_d2": True}, **SMALL)  # d2 learned beside it
+    out = with_d2(torch.rand(2, 1, 8, 6), noise=False)
+    (out * torch.randn_like(out)).sum().backward()
+    assert with_d2.log_d2_scale.dtype == torch.float64 and torch.isfinite(with_d2.log_d2_scale.grad)
     two = LearnedSLM({"parameterization": "projected", "patterns": 2}, **SMALL)
     assert not hasattr(two, "logits") and two.amplitudes.shape == (2, *two.block.shape)
     torch.testing.assert_close(two.amplitudes.detach()[0], two.initial_pattern(), rtol=0, atol=0)  # pattern 0 as K = 1
