@@ -601,12 +601,10 @@ def snr_sigma(signal: torch.Tensor, snr_db: float) -> torch.Tensor:
     flat = signal.flatten(1)
     dev = flat - flat.mean(dim=1, keepdim=True)  # two passes: 13x faster than Tensor.var on one CPU thread
     var = (dev * dev).mean(dim=1)
-    if signal.requires_grad:  # sqrt's derivative is infinite at 0: a constant example's sigma gets gradient 0, not NaN
-        lit = var > 0
-        var = torch.where(lit, var, torch.ones_like(var))
-        sigma = torch.where(lit, torch.sqrt(var * 10.0 ** (-snr_db / 10.0)), torch.zeros_like(var))
-    else:
-        sigma = torch.sqrt(var.clamp_min(0) * 10.0 ** (-snr_db / 10.0))
+    # A constant example (var 0) gets sigma 0; sqrt's infinite slope at 0 is kept out of the gradient (0, not NaN).
+    lit = var > 0
+    root = torch.sqrt(torch.where(lit, var, torch.ones_like(var)) * 10.0 ** (-snr_db / 10.0))
+    sigma = torch.where(lit, root, torch.zeros_like(var))
     return sigma.reshape(-1, *([1] * (signal.dim() - 1)))
 
 

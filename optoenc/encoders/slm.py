@@ -201,7 +201,7 @@ class LearnedSLM(PatternSet, _SLMBase):
         self.patterns = int(self.config.patterns)
         self.projected = self.config.parameterization == "projected"
         if self.projected:  # the amplitudes themselves, float64, kept in [0, 1] by constrain_()
-            self.amplitudes = nn.Parameter(self.initial_pattern(self.patterns).clone())
+            self.amplitudes = nn.Parameter(self.initial_pattern(self.patterns))
         else:
             p = self.initial_pattern(self.patterns).clamp(0.01, 0.99)
             # float64 logits: the gradient w (1 - w) stays non-zero up to |logit| ~ 36 (float32: ~16).

@@ -160,21 +160,20 @@ def test_learned_gradcheck_float64():
     assert torch.autograd.gradcheck(embed, (sub,), eps=1e-6, atol=1e-8, rtol=1e-5)
 
 
-@pytest.mark.parametrize("noise_level_gradient", [False, True])
-def test_learned_noise_level_gradient_reaches_the_mask(noise_level_gradient):
+def test_learned_noise_level_gradient_reaches_the_mask():
     # sensor.noise_level_gradient routes the noise level's dependence on the embedding back to the mask: the
-    # noisy readings are the same to the bit, the mask's gradient is the clean one plus the level's share.
+    # noisy readings are the same to the bit, the mask's gradient is the clean one plus the level's share, which
+    # at 10 dB is far above rounding.
     scene = torch.rand(4, 1, 8, 6, generator=torch.Generator().manual_seed(0))
     grads, outs = {}, {}
-    for flag in (False, noise_level_gradient):
+    for flag in (False, True):
         enc = LearnedSLM(fidelity=SMALL["fidelity"], sensor={**SMALL["sensor"], "snr_db": 10.0,
                                                               "noise_level_gradient": flag})
         out = enc.add_sensor_noise(enc.measure(scene), generator=torch.Generator().manual_seed(5))
         (out * torch.linspace(-1, 1, out.numel()).reshape(out.shape)).sum().backward()
         grads[flag], outs[flag] = enc.logits.grad.clone(), out.detach()
-    assert torch.equal(outs[False], outs[noise_level_gradient])
-    same = torch.equal(grads[False], grads[noise_level_gradient])
-    assert same != noise_level_gradient  # a 10-dB level's share of the gradient is far above rounding
+    assert torch.equal(outs[False], outs[True])
+    assert not torch.allclose(grads[False], grads[True], rtol=1e-3, atol=0)
 
 
 def test_saturated_sigmoid_sub_pixel_is_stuck_under_adam_and_a_projected_one_is_not():
