@@ -62,6 +62,11 @@ class TrainerConfig(Settings):
         "to 0 by the last epoch, so the decoder ends fitted to a settled mask); the decoder's stays lr",
         choices=("constant", "cosine"),
     )
+    weight_decay: float = setting(
+        0.0, "decoupled weight decay (AdamW) of the decoder's weight matrices, per unit learning rate (each step "
+        "multiplies them by 1 - lr x weight_decay); biases, normalisation and the encoder are not decayed; 0: Adam, "
+        "the paper's", ge=0, le=100,
+    )
     precompute: bool = setting(True, "encode the dataset once for fixed, non-augmented encoders (noise still drawn per batch)")
     cache: bool = setting(True, "cache precomputed embeddings on disk (keyed by everything that affects them)")
     cache_dir: Optional[str] = setting(None, "embedding cache folder (null: $OPTOENC_CACHE_DIR or ~/.cache/optoenc)")

@@ -219,16 +219,21 @@ class Logistic(Decoder):
 @dataclass
 class FCNNConfig(DecoderConfig):
     hidden: int = setting(800, "hidden units", ge=1)
+    dropout: float = setting(
+        0.0, "dropout probability on the hidden units while training (after the ReLU; none at evaluation); 0: none, "
+        "the paper's", ge=0, lt=1,
+    )
 
 
 class FCNN(Decoder):
-    """Two-layer FCNN: flatten -> Linear(n, 800, no bias) -> BatchNorm1d -> ReLU -> Linear(800, classes)."""
+    """Two-layer FCNN: flatten -> Linear(n, 800, no bias) -> BatchNorm1d -> ReLU [-> Dropout] -> Linear(800, classes)."""
 
     name = "fcnn"
     Config = FCNNConfig
 
     def build(self) -> nn.Module:
-        h = self.config.hidden
-        return nn.Sequential(
-            nn.Linear(self.in_features, h, bias=False), nn.BatchNorm1d(h), nn.ReLU(), nn.Linear(h, self.num_classes)
-        )
+        h, p = self.config.hidden, float(self.config.dropout)
+        layers = [nn.Linear(self.in_features, h, bias=False), nn.BatchNorm1d(h), nn.ReLU()]
+        if p > 0:  # only then: without it the layers, and a checkpoint's keys, are the paper's
+            layers.append(nn.Dropout(p))
+        return nn.Sequential(*layers, nn.Linear(h, self.num_classes))

@@ -66,3 +66,31 @@ def test_standardize_uses_training_statistics():
 
 def test_registry_lists_both():
     assert {"logistic", "fcnn"} <= set(get_registry("decoder").names())
+
+
+def test_fcnn_dropout_is_a_training_only_layer_and_absent_by_default():
+    """decoder.dropout: Dropout(p) after the ReLU; evaluation is deterministic and equals the same weights
+    without it (PyTorch's inverted dropout scales at training time), and p = 0 keeps the paper's layers (and
+    so a checkpoint's keys)."""
+    plain = FCNN(in_shape=(1, 6, 8), num_classes=10)
+    assert not any(isinstance(m, nn.Dropout) for m in plain.modules())
+    d = FCNN({"dropout": 0.5}, in_shape=(1, 6, 8), num_classes=10)
+    assert isinstance(d.head[3], nn.Dropout) and d.head[3].p == 0.5
+    # the same weights in both: the plain one's state dict maps onto the dropout one's by layer
+    state = {k.replace("head.3.", "head.4."): v for k, v in plain.state_dict().items()}
+    d.load_state_dict(state)
+    x = torch.randn(64, 1, 6, 8)
+    plain.eval(), d.eval()
+    assert torch.equal(d(x), plain(x))
+    d.train()
+    torch.manual_seed(0)
+    a = d(x)
+    torch.manual_seed(1)
+    assert not torch.equal(a, d(x))  # training draws a mask per call
+    hidden = d.head[:3](d.norm(x.flatten(1)))
+    dropped = d.head[:4](d.norm(x.flatten(1)))
+    kept = hidden > 0
+    # about half of the active units dropped, the survivors scaled by 1 / (1 - p) = 2 (exactly)
+    frac = (dropped[kept] == 0).float().mean().item()
+    assert 0.4 < frac < 0.6  # ~25 000 active units: the fraction's sd is ~0.003, far inside
+    assert torch.equal(dropped[kept & (dropped != 0)], 2 * hidden[kept & (dropped != 0)])

@@ -67,6 +67,9 @@ def test_batch_count_applies_lightnings_limit():
         # generator of its own seeded as the batch loop reseeds the default one (a ragged last batch of 50).
         ("lens", "fcnn", ["dataset.train_size=450", "trainer.threads=1"]),
         ("diffuser", "logistic", ["dataset.train_size=1000", "trainer.threads=1", "trainer.precision=bf16-mixed"]),
+        # Dropout draws from the default generator after the noise: with it the noise is not drawn ahead (drawn
+        # elsewhere, the default generator's next draws would be the noise's, not the dropout's). AdamW's decay.
+        ("lens", "fcnn", ["dataset.train_size=450", "trainer.threads=1", "decoder.dropout=0.5", "trainer.weight_decay=0.1"]),
     ],
 )
 def test_the_epoch_loop_trains_exactly_as_the_batch_loop(tmp_path, encoder, decoder, extra, restore_threads):
@@ -111,6 +114,10 @@ def test_the_noise_is_drawn_ahead_only_with_one_torch_thread(restore_threads):
     assert _draws_ahead(sigma, x) and not _draws_ahead(None, x)
     torch.set_num_threads(2)
     assert not _draws_ahead(sigma, x)
+    # a decoder that draws (dropout) takes its numbers from the default generator after the noise's
+    torch.set_num_threads(1)
+    assert _draws_ahead(sigma, x, torch.nn.Sequential(torch.nn.Linear(2, 2), torch.nn.Dropout(0.0)))
+    assert not _draws_ahead(sigma, x, torch.nn.Sequential(torch.nn.Linear(2, 2), torch.nn.Dropout(0.3)))
 
 
 def test_the_noise_drawn_ahead_is_the_reseeded_default_generators():

@@ -226,3 +226,33 @@ def test_trainer_projects_the_learned_slm_amplitudes_after_every_step(tmp_path, 
     assert len(seen.ranges) == 2
     for lo, hi, at_bounds in seen.ranges:
         assert lo >= 0 and hi <= 1 and at_bounds > 0.5
+
+
+def test_weight_decay_is_decoupled_on_the_decoders_weight_matrices_only(quick):
+    """trainer.weight_decay = wd: AdamW's decoupled decay, each step multiplying the decoder's weight matrices
+    by 1 - lr wd; with a zero gradient Adam's own step is exactly zero, so after one step the matrices are
+    (1 - lr wd) times what they were (to float32 rounding of one product, rel 1e-6) and every other
+    parameter (biases, BatchNorm, the mask's logits) is unchanged to the bit. 0 keeps plain Adam."""
+    from optoenc.training.run import build
+
+    run = compose(overrides=quick + ["trainer.weight_decay=0.5", "trainer.lr=0.01", "sensor.embedding=[3,4]",
+                                     "fidelity.grid=[48,64]"], names={"encoder": "learned_slm", "decoder": "fcnn"})
+    module = build(run).module
+    opt = module.configure_optimizers()
+    opt = opt["optimizer"] if isinstance(opt, dict) else opt
+    assert isinstance(opt, torch.optim.AdamW)
+    before = {n: p.detach().clone() for n, p in module.named_parameters()}
+    for p in module.parameters():
+        p.grad = torch.zeros_like(p)
+    opt.step()
+    decayed = set()
+    for n, p in module.named_parameters():
+        if n.startswith("decoder.") and p.ndim >= 2:
+            decayed.add(n)
+            assert torch.allclose(p, before[n] * (1 - 0.01 * 0.5), rtol=1e-6, atol=0)
+        else:
+            assert torch.equal(p, before[n]), n
+    assert decayed == {"decoder.head.0.weight", "decoder.head.3.weight"}
+    plain = build(compose(overrides=quick + ["sensor.embedding=[3,4]", "fidelity.grid=[48,64]"],
+                          names={"encoder": "learned_slm", "decoder": "fcnn"})).module
+    assert type(plain.configure_optimizers()) is torch.optim.Adam

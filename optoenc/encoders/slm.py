@@ -47,6 +47,10 @@ class SLMConfig(EncoderConfig):
         "null: seeded uniform random"
     )
     seed: int = setting(0, "seed of the random pattern", ge=0)
+    pattern_range: tuple[float, float] = setting(
+        (0.0, 1.0), "(low, high) of the seeded uniform random pattern (pattern_path null): e.g. (0.45, 0.55) starts a "
+        "learned mask half open everywhere, where the sigmoid's gradient is largest", ge=0, le=1,
+    )
     quantize: str = setting("none", "display levels: 'none', '8bit' or 'rgb565' (R 5, G 6, B 5 bits)",
                             choices=("none", "8bit", "rgb565"))
 
@@ -98,7 +102,10 @@ class _SLMBase(MaskEncoder):
         shape = self.block.shape
         path = self.config.pattern_path
         if path is None:
-            draw = np.random.default_rng(self.config.seed).uniform(0.0, 1.0, (count, *shape) if count > 1 else shape)
+            low, high = (float(v) for v in self.config.pattern_range)
+            if low > high:
+                raise ConfigError("encoder.pattern_range", list(self.config.pattern_range), "must be (low, high) with low <= high")
+            draw = np.random.default_rng(self.config.seed).uniform(low, high, (count, *shape) if count > 1 else shape)
             return torch.from_numpy(draw)
         if count > 1:
             raise ConfigError("encoder.pattern_path", path, f"is one pattern; leave it null with encoder.patterns = {count}")

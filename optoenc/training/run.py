@@ -145,6 +145,7 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
         lr=run.trainer.lr,
         encoder_lr=run.trainer.encoder_lr,
         encoder_lr_schedule=run.trainer.encoder_lr_schedule,
+        weight_decay=run.trainer.weight_decay,
         seed=run.seed,
         precomputed=precomputed,
         adversary=obj,

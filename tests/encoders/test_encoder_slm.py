@@ -285,3 +285,21 @@ def test_learned_d2_steps_at_its_own_rate(scale):
     # sqrt(sum_i w_i^2 / u_i) over the two averages' weights: 1, 1.0013 and 1.0036 for steps 1-3 with
     # betas (0.9, 0.999). So three steps move log d2 by at most 3.005 lr, whatever the gradients: 1.01 x 3 lr.
     assert 0 < abs(float(enc.log_d2_scale)) <= 3 * 1e-2 * scale * 1.01
+
+
+def test_pattern_range_draws_within_it_and_the_default_is_the_plain_uniform_draw():
+    """encoder.pattern_range = (low, high): the seeded draw is low + (high - low) u with the same u as the
+    default (0, 1) draw (numpy's uniform), so the default pattern is unchanged to the bit; low > high is
+    refused naming the setting."""
+    plain = LearnedSLM(**SMALL).initial_pattern()
+    u = np.random.default_rng(0).uniform(0.0, 1.0, plain.shape)
+    assert torch.equal(plain, torch.from_numpy(u))
+    half = LearnedSLM({"pattern_range": (0.45, 0.55)}, **SMALL)
+    w = half.weights().detach()
+    assert 0.45 <= w.min() and w.max() <= 0.55 and w.max() - w.min() > 0.09  # 1122 draws span the range
+    assert torch.allclose(half.initial_pattern(), torch.from_numpy(0.45 + 0.1 * u), rtol=0, atol=1e-15)
+    assert torch.equal(FixedSLM({"pattern_range": (0.2, 0.2)}, **SMALL).weights(), torch.full(plain.shape, 0.2, dtype=plain.dtype))
+    with pytest.raises(ConfigError, match=r"encoder.pattern_range = \[0.6, 0.4\]: must be \(low, high\) with low <= high"):
+        LearnedSLM({"pattern_range": (0.6, 0.4)}, **SMALL)
+    with pytest.raises(ConfigError, match="pattern_range"):
+        LearnedSLM({"pattern_range": (-0.1, 0.4)}, **SMALL)
