@@ -10,14 +10,9 @@ With ``--table1`` it prints Table 1's fixed encoders instead (docs/results/table
 examples/paper/table1_whiten.yaml): the table's figure (``standardize``), the whitened one, the paper's
 point-sampling sensor's (sampling.csv, where measured) and the paper's.
 
-With ``--select`` it chooses, for each learned-SLM cell of Tables 1 and 3 (seed 0, Table 3's transforms drawn
-once), the variant with the highest *validation* accuracy among the table's (BatchNorm+ReLU, the decoder's
-Adam at 1e-3), the whitened one (``whiten_batchnorm_relu``; examples/paper/whiten.yaml) and the decoder's rate
-1e-2 (examples/paper/decoder_lr.yaml), where each has run; reads them from the cells' ``summary.json`` under
-docs/results/sweep_cells/{table1,table3,whiten,decoder_lr}, and prints the selected variant's test accuracy
-against the paper's: hyperparameters chosen on validation, as the epoch is.
+The learned SLM's variant chosen on validation among all its committed runs: examples/paper/select_variant.py.
 
-    python examples/paper/whiten_table.py [--results docs/results] [--table1 | --select]
+    python examples/paper/whiten_table.py [--results docs/results] [--table1]
 """
 
 from __future__ import annotations
@@ -44,10 +39,7 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--results", type=Path, default=Path(__file__).resolve().parents[2] / "docs" / "results")
     ap.add_argument("--table1", action="store_true", help="Table 1's fixed encoders, whitened (table1_whiten.csv)")
-    ap.add_argument("--select", action="store_true", help="the learned SLM's decoder variant chosen on validation")
     args = ap.parse_args(argv)
-    if args.select:
-        return _select(args.results)
     tables = {"1": _rows(args.results / "table1.csv"), "3": _rows(args.results / "table3.csv")}
     if args.table1:
         return _table1(args.results, tables["1"])
@@ -102,53 +94,6 @@ def _table1(results: Path, table1: list[dict[str, str]]) -> None:
         t, w = acc(table1, r), _num(r["test_acc"])
         print(f"| {r['encoder']} | {r['embedding']} | {r['decoder']} | {_fmt(_num(r['paper_acc']))} | {_fmt(t)} | "
               f"{_fmt(w)} | {_fmt(w - t if None not in (w, t) else None, True)} | {_fmt(acc(sampling, r, 'point_test_acc'))} |")
-
-
-def _summary(cell: Path) -> dict | None:
-    import json
-
-    try:
-        return json.loads((cell / "summary.json").read_text())
-    except (OSError, ValueError):
-        return None
-
-
-#: The learned SLM's variants --select chooses among: (label, sweep folder under sweep_cells ("table": table1
-#: or table3), its cell names' prefix); the table's own cells first (a tie keeps the earlier variant).
-VARIANTS = (("table", "table", "encoder=learned_slm,"), ("whitened", "whiten", ""), ("decoder 1e-2", "decoder_lr", ""))
-
-
-def _select(results: Path) -> None:
-    cells = results / "sweep_cells"
-    paper = {(r["embedding"], r["decoder"], r.get("transform", "original")): _num(r["paper_acc"])
-             for name in ("table1.csv", "table3.csv") for r in _rows(results / name) if r["encoder"] == "learned_slm"
-             and r.get("augment_mode", "once") in ("once", "")}
-    print("| embedding | decoder | transform | paper | " + " | ".join(f"{v}: val | {v}: test" for v, _, _ in VARIANTS)
-          + " | selected | selected: test | minus paper |")
-    print("|" + "---|" * (4 + 2 * len(VARIANTS) + 3))
-    below = 0
-    for (emb, dec, transform), p in paper.items():
-        found = []
-        for label, folder, prefix in VARIANTS:
-            if transform == "original":
-                name = f"{prefix}embedding={emb},decoder={dec}," + ("seed=0," if folder == "table" else "") + "verify_preset=reference"
-            else:
-                suffix = ",operator_dtype=auto,precision=auto" if emb == "24x32" else ""
-                name = f"{prefix}embedding={emb}," + ("" if folder == "table" else "decoder=fcnn,") + \
-                    f"augment={transform},augment_draw=once{suffix}"
-            where = ("table1" if transform == "original" else "table3") if folder == "table" else folder
-            summary = _summary(cells / where / name)
-            found.append(None if summary is None else (100 * summary["val_acc"], 100 * summary["test_acc"]))
-        if found[0] is None:
-            print(f"| {emb} | {dec} | {transform} | {_fmt(p)} | not run: the table's cell |")
-            continue
-        best = max((k for k in range(len(VARIANTS)) if found[k] is not None), key=lambda k: (found[k][0], -k))
-        acc = found[best][1]
-        below += acc < p
-        runs = " | ".join("- | -" if f is None else f"{_fmt(f[0])} | {_fmt(f[1])}" for f in found)
-        print(f"| {emb} | {dec} | {transform} | {_fmt(p)} | {runs} | {VARIANTS[best][0]} | {_fmt(acc)} | "
-              f"{_fmt(acc - p, True)} |")
-    print(f"\n{below} cells below the paper with the variant chosen on validation (seed 0; '-': not run)")
 
 
 if __name__ == "__main__":
