@@ -18,7 +18,8 @@ the table's own knobs (at another precision, say): only the table's cell stands 
 
     python examples/paper/select_variant.py [--results docs/results] [--out docs/results/selected]
 
-``--out P`` also writes ``P.csv`` and ``P.md``. A tie in validation accuracy keeps the table's own cell.
+``--out P`` also writes ``P.csv`` and ``P.md``. A tie in validation accuracy keeps the table's own cell, else the
+variant that changes fewer knobs, else the first by folder and name: never the test accuracy.
 """
 
 from __future__ import annotations
@@ -127,8 +128,11 @@ def select(results: Path) -> list[dict]:
         # say), not a variant: choosing between such copies on validation would only choose the luckier draw
         candidates = [(c, cfg) for c, cfg in configs if _key(cfg) == key and _protocol(cfg) == ref
                       and (cfg is table or _variant(cfg, table) != "table")]
-        # the table's own cell first: a tie keeps it
-        candidates.sort(key=lambda item: (-item[1]["_summary"]["val_acc"], item[1] is not table))
+        # a tie in validation accuracy keeps the table's own cell, else the variant changing fewer knobs, else the
+        # first by folder and name (never the test accuracy)
+        candidates.sort(key=lambda item: (-item[1]["_summary"]["val_acc"], item[1] is not table,
+                                          _variant(item[1], table).count(",") if item[1] is not table else 0,
+                                          str(item[0].relative_to(results / "sweep_cells"))))
         best_dir, best = candidates[0]
         val, test = 100 * best["_summary"]["val_acc"], 100 * best["_summary"]["test_acc"]
         out.append({
