@@ -54,6 +54,12 @@ class SLMConfig(EncoderConfig):
     quantize: str = setting("none", "display levels: 'none', '8bit' or 'rgb565' (R 5, G 6, B 5 bits)",
                             choices=("none", "8bit", "rgb565"))
 
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        low, high = self.pattern_range
+        if low > high:
+            raise ConfigError("pattern_range", list(self.pattern_range), "must be (low, high) with low <= high")
+
 
 @dataclass
 class LearnedSLMConfig(SLMConfig):
@@ -103,8 +109,6 @@ class _SLMBase(MaskEncoder):
         path = self.config.pattern_path
         if path is None:
             low, high = (float(v) for v in self.config.pattern_range)
-            if low > high:
-                raise ConfigError("encoder.pattern_range", list(self.config.pattern_range), "must be (low, high) with low <= high")
             draw = np.random.default_rng(self.config.seed).uniform(low, high, (count, *shape) if count > 1 else shape)
             return torch.from_numpy(draw)
         if count > 1:
