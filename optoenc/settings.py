@@ -104,6 +104,15 @@ def _field_types(cls: type) -> dict[str, tuple[Any, int | None, bool]]:
 
 
 @functools.lru_cache(maxsize=None)
+def _is_tuple(cls: type, name: str) -> bool:
+    """Whether field ``name`` is annotated as a tuple (``Optional`` removed), not a list."""
+    tp = typing.get_type_hints(cls).get(name)
+    union = typing.get_origin(tp) is typing.Union or type(tp).__name__ == "UnionType"
+    args = [a for a in typing.get_args(tp) if a is not type(None)] if union else [tp]
+    return len(args) == 1 and typing.get_origin(args[0]) is tuple
+
+
+@functools.lru_cache(maxsize=None)
 def _required(cls: type) -> frozenset[str]:
     """Fields whose annotation does not admit None (and whose default is not None)."""
     try:
@@ -197,6 +206,12 @@ class Settings:
     """Base of every settings dataclass: validated on construction."""
 
     def __post_init__(self) -> None:
+        # A tuple setting given as a list (a mapping, YAML, the command line) is held as the tuple its default is,
+        # so a configuration built from its own to_dict() equals it.
+        for name, (_, _, sequence) in _field_types(type(self)).items():
+            value = getattr(self, name, None)
+            if sequence and isinstance(value, list) and _is_tuple(type(self), name):
+                setattr(self, name, tuple(value))
         validate(self)
 
     def replace(self, **changes: Any) -> "Settings":

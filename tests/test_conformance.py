@@ -212,3 +212,21 @@ class TestLogisticThroughBaseClass(DecoderConformance):
 
     decoder_cls = get_registry("decoder").get("logistic")
     setup = {"in_shapes": [(1, 1, 1), (1, 3, 4)], "num_classes": 3}
+
+
+def test_tuple_settings_given_as_lists_are_held_as_tuples_and_lists_stay_lists():
+    """A mapping, YAML or the command line gives a list: a tuple-annotated setting holds it as the tuple its default
+    is (so Config(**to_dict(c)) == c, the round trip above), Optional included; a list-annotated one stays a list."""
+    import dataclasses
+
+    from optoenc.settings import Settings, setting, to_dict
+
+    @dataclasses.dataclass
+    class Demo(Settings):
+        pair: tuple[int, int] = setting((1, 2), "a pair", ge=0)
+        many: tuple[float, ...] | None = setting(None, "any number")  # builtins only: the hints resolve here
+        items: list[int] = setting(default_factory=lambda: [1], help="a list")
+
+    d = Demo(pair=[3, 4], many=[0.5, 1.5], items=[5, 6])
+    assert d.pair == (3, 4) and d.many == (0.5, 1.5) and d.items == [5, 6]
+    assert Demo(**to_dict(Demo())) == Demo()

@@ -55,8 +55,6 @@ class SLMConfig(EncoderConfig):
                             choices=("none", "8bit", "rgb565"))
 
     def __post_init__(self) -> None:
-        if isinstance(self.pattern_range, list):  # from a mapping or YAML: the same value as the default's tuple
-            self.pattern_range = tuple(self.pattern_range)
         super().__post_init__()
         low, high = self.pattern_range
         if low > high:

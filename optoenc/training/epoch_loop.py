@@ -89,16 +89,22 @@ def train_epoch(module, batch, batch_size: int, limit: int | float = 1.0) -> dic
     nb = batch_count(len(order), batch_size, limit)
     seeds = [train_batch_seed(module.seed, module.current_epoch, b) for b in range(nb)]
     sizes = [min(batch_size, len(order) - b * batch_size) for b in range(nb)]
-    draws = _noise_ahead(seeds, sizes, x) if _draws_ahead(sigma, x, module.decoder) else None
+    draws = _noise_ahead(seeds, sizes, x) if _draws_ahead(sigma, x) else None
     params = [p for group in opt.param_groups for p in group["params"]]
     total, count, count_steps = 0.0, 0, 0
     predicted, labels = [], []
     for b in range(nb):
         _reseed(seeds[b])  # the per-batch loop's on_train_batch_start
+        noise = None
+        if draws is not None:
+            # The default generator continues from where the noise's draw left the helper's: whatever the step
+            # draws next (the decoder's dropout, say) are the per-batch loop's numbers, drawn after its noise.
+            noise, after = next(draws)
+            torch.default_generator.set_state(after)
         idx = order[b * batch_size : (b + 1) * batch_size]
         xb, yb = x.index_select(0, idx), y.index_select(0, idx)  # x[idx]'s values, gathered row by row: 2x faster
         sb = None if sigma is None else sigma.index_select(0, idx)
-        logits = module.decoder(module.embed(xb, augment=True, sigma=sb, noise=None if draws is None else next(draws)))
+        logits = module.decoder(module.embed(xb, augment=True, sigma=sb, noise=noise))
         loss = F.cross_entropy(logits, yb)
         if not math.isfinite(loss.item()):
             _count_steps(module.trainer, count_steps)
@@ -123,19 +129,14 @@ def train_epoch(module, batch, batch_size: int, limit: int | float = 1.0) -> dic
     return {"loss": mean}
 
 
-def _draws_ahead(sigma: torch.Tensor | None, x: torch.Tensor, decoder: torch.nn.Module | None = None) -> bool:
+def _draws_ahead(sigma: torch.Tensor | None, x: torch.Tensor) -> bool:
     """Whether :func:`_noise_ahead` draws the noise: the base class's Gaussian (``sigma`` known), on the
-    CPU generator's device, with one torch thread, and a ``decoder`` that draws nothing itself (dropout
-    draws from the default generator after the noise: drawn ahead elsewhere, its draws would not be the
-    per-batch loop's).
+    CPU generator's device, with one torch thread.
 
     With more, the helper thread shares a core with one of torch's, and an elementwise product split
     between them waits for the slower half: measured no faster with two threads (a 24 x 32 FCNN epoch).
     """
-    draws_itself = decoder is not None and any(
-        isinstance(m, torch.nn.modules.dropout._DropoutNd) and m.p > 0 for m in decoder.modules()
-    )
-    return sigma is not None and x.device.type == "cpu" and torch.get_num_threads() == 1 and not draws_itself
+    return sigma is not None and x.device.type == "cpu" and torch.get_num_threads() == 1
 
 
 def _noise_ahead(seeds: list[int], sizes: list[int], x: torch.Tensor):
@@ -145,14 +146,16 @@ def _noise_ahead(seeds: list[int], sizes: list[int], x: torch.Tensor):
     ``seeds[b]``: what the default generator, reseeded so for the batch, draws in :func:`~optoenc.encoders.imaging.add_noise`
     (the same numbers). Drawing them is a serial Mersenne-twister loop, an eighth of a 24 x 32 FCNN step
     on one thread; the helper thread draws the next batch's while this one trains (the draw releases
-    Python's lock), on a core the step's own threads leave free.
+    Python's lock), on a core the step's own threads leave free. Each batch yields ``(noise, state)``: the
+    generator's state after the draw, the default generator's after the same draw in the per-batch loop.
     """
     from concurrent.futures import ThreadPoolExecutor
 
     shape, dtype = tuple(x.shape[1:]), x.dtype
 
-    def draw(b: int) -> torch.Tensor:
-        return torch.randn((sizes[b], *shape), generator=torch.Generator().manual_seed(seeds[b]), dtype=dtype)
+    def draw(b: int) -> tuple[torch.Tensor, torch.Tensor]:
+        g = torch.Generator().manual_seed(seeds[b])
+        return torch.randn((sizes[b], *shape), generator=g, dtype=dtype), g.get_state()
 
     with ThreadPoolExecutor(1, thread_name_prefix="optoenc-noise") as pool:
         ahead = pool.submit(draw, 0) if sizes else None

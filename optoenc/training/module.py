@@ -224,6 +224,7 @@ class EncoderClassifier(L.LightningModule):
         for name, p in self.encoder.named_parameters():
             if p.requires_grad:
                 enc.setdefault(float(scales.get(name, 1.0)), []).append(p)
+        # weight_decay 0 spelled out on every other group: AdamW's own default is 1e-2
         for scale, params in sorted(enc.items(), reverse=True):  # the encoder's own rate first
             groups.append({"params": params, "lr": self.encoder_lr * scale, "encoder": True, "weight_decay": 0.0})
         if self.adversary is not None:
