@@ -243,3 +243,26 @@ def test_select_variant_takes_the_protocol_run_with_the_highest_validation_accur
     mod.main(["--results", str(copy), "--out", str(tmp_path / "selected")])
     assert capsys.readouterr().out.splitlines()[-1].startswith(f"{below(after.values())} cells below the paper")
     assert len((tmp_path / "selected.csv").read_text().splitlines()) == 1 + len(before)
+
+
+def test_ceiling_plot_reads_the_budget_curve_off_the_committed_cells(capsys, tmp_path):
+    """examples/paper/ceiling_plot.py: the validation-selected test accuracy at each budget is the first epoch with
+    the best validation accuracy among the first N (the summaries' own choice: at 200 epochs it equals each seed's
+    summary.json test_acc), and the picture is written whole (no temporary file left)."""
+    import json
+
+    spec = importlib.util.spec_from_file_location("ceiling_plot", EXAMPLES / "paper" / "ceiling_plot.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    rows = [(0, 50.0, 1.0), (1, 60.0, 2.0), (2, 60.0, 3.0), (3, 55.0, 4.0)]
+    assert [mod.selected(rows, n) for n in (1, 2, 3, 4)] == [1.0, 2.0, 2.0, 2.0]  # ties keep the earlier epoch
+    for seed, cell in mod.SEEDS.items():
+        summary = json.loads((mod.CELLS / cell / "summary.json").read_text())
+        assert summary["seed"] == seed and summary["epochs"] == 200
+        assert round(mod.selected(mod.epochs(cell), 200), 2) == round(100 * summary["test_acc"], 2)
+    out_png = tmp_path / "ceiling.png"
+    assert mod.main(["--out", str(out_png)]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    assert printed[-1] == str(out_png) and out_png.stat().st_size > 10_000
+    assert [p.name for p in tmp_path.iterdir()] == ["ceiling.png"]
+    assert any(line.startswith("200 | ") for line in printed)
