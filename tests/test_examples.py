@@ -86,7 +86,7 @@ def test_operator_order_example_compares_the_same_operator():
     assert row["rel_diff"] < 1e-6 and row["rows_first_s"] > 0 and row["columns_first_s"] > 0
 
 
-@pytest.mark.parametrize("machine", ["xeon", "epyc"])
+@pytest.mark.parametrize("machine", ["xeon", "epyc", "zen4"])
 def test_cost_tally_covers_every_cell_of_tables_1_and_3_once(tmp_path, machine):
     # The tally adds one kind of machine's measured run clocks, a measured twin's (another seed) or the sweep's
     # estimate for the rest; its list of cells is the specs' own, every one of them once.

@@ -2,13 +2,15 @@
 quiet estimate elsewhere, and the machine time both add up to with two workers; then how many fixed-encoder
 and learned cells are within the issue's per-cell goals (60 s and 10 min).
 
-    python examples/paper/cost_tally.py [--machine xeon|epyc] [--csv OUT.csv]
+    python examples/paper/cost_tally.py [--machine xeon|epyc|zen4] [--csv OUT.csv]
 
 ``xeon`` (the default) reads docs/results/xeon/: the Intel machines with AMX of 2026-11-25, where both tables run
 in one sweep each with the current code (resumed over sittings) (``table{1,3}_cells.csv``, the sweeps' own cell
 tables) and the estimates are ``table{1,3}_estimate_2workers.txt``. ``epyc`` reads docs/results/epyc/: the AMD
 machines of 2026-11-24/25, whose cells were measured over several sittings (the newest file naming a cell
-wins; each file's command is in docs/results/README.md). Estimates come from ``optoenc sweep SPEC --dry-run
+wins; each file's command is in docs/results/README.md). ``zen4`` reads docs/results/zen4/: the AMD EPYC
+machines of 2026-11-28 (family 25 model 17, AVX-512 with bfloat16 products), where the tables run in one sweep
+each as on the Intel machines. Estimates come from ``optoenc sweep SPEC --dry-run
 --workers 2``. A measured cell ran two at once, one thread each, as the tables are run, or alone on both threads
 where its spec sets ``trainer.threads: 2`` (the fixed encoders' 24x32 FCNN cells, since session 27): the machine
 time adds each cell's clock times its share of the machine (:func:`share`). The estimate times steps on a quiet
@@ -46,6 +48,13 @@ MACHINES = {
             ("sorted_table3_cells.csv", "table3", "clock_s"),  # learned-SLM cells, the build's rows sorted by band
             ("table3_fixed_rerun_cells.csv", "table3", "clock_s"),  # the coded aperture's shift and rescale cells
             ("canvas_rows_table3_cells.csv", "table3", "clock_s"),  # learned-SLM cells, the operator by canvas row
+        ],
+    },
+    "zen4": {
+        "estimates": {"table1": "table1_estimate_2workers.txt", "table3": "table3_estimate_2workers.txt"},
+        "measured": [
+            ("table1_cells.csv", "table1", "wall_time_s"),  # optoenc sweep examples/paper/table1.yaml
+            ("table3_cells.csv", "table3", "wall_time_s"),  # optoenc sweep examples/paper/table3.yaml
         ],
     },
 }
