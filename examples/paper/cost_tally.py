@@ -9,7 +9,7 @@ in one sweep each with the current code (resumed over sittings) (``table{1,3}_ce
 tables) and the estimates are ``table{1,3}_estimate_2workers.txt``. ``epyc`` reads docs/results/epyc/: the AMD
 machines of 2026-11-24/25, whose cells were measured over several sittings (the newest file naming a cell
 wins; each file's command is in docs/results/README.md). ``zen4`` reads docs/results/zen4/: the AMD EPYC
-machines of 2026-11-28 (family 25 model 17, AVX-512 with bfloat16 products), where the tables run in one sweep
+machines of sessions 30-33, 2026-11-28 (family 25 model 17, AVX-512 with bfloat16 products), where the tables run in one sweep
 each as on the Intel machines. Estimates come from ``optoenc sweep SPEC --dry-run
 --workers 2``. A measured cell ran two at once, one thread each, as the tables are run, or alone on both threads
 where its spec sets ``trainer.threads: 2`` (the fixed encoders' 24x32 FCNN cells, since session 27): the machine
