@@ -78,12 +78,21 @@ def _allowed_text(meta: dict) -> str:
     return "must be " + " and ".join(parts) if parts else ""
 
 
+def _without_none(tp: Any) -> Any:
+    """``tp`` with ``Optional`` removed: ``X`` for ``Optional[X]`` (or ``X | None``), ``None`` for a union of several
+    types, ``tp`` itself otherwise."""
+    if typing.get_origin(tp) is typing.Union or type(tp).__name__ == "UnionType":
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        return args[0] if len(args) == 1 else None
+    return tp
+
+
 def _scalar_type(tp: Any) -> tuple[Any, int | None, bool]:
     """``(element type, fixed length or None, is a sequence)`` of a field annotation (``Optional`` removed)."""
+    tp = _without_none(tp)
+    if tp is None:
+        return None, None, False
     origin = typing.get_origin(tp)
-    if origin is typing.Union or type(tp).__name__ == "UnionType":
-        args = [a for a in typing.get_args(tp) if a is not type(None)]
-        return _scalar_type(args[0]) if len(args) == 1 else (None, None, False)
     if origin in (tuple, list):
         args = typing.get_args(tp)
         if not args:
@@ -106,10 +115,7 @@ def _field_types(cls: type) -> dict[str, tuple[Any, int | None, bool]]:
 @functools.lru_cache(maxsize=None)
 def _is_tuple(cls: type, name: str) -> bool:
     """Whether field ``name`` is annotated as a tuple (``Optional`` removed), not a list."""
-    tp = typing.get_type_hints(cls).get(name)
-    union = typing.get_origin(tp) is typing.Union or type(tp).__name__ == "UnionType"
-    args = [a for a in typing.get_args(tp) if a is not type(None)] if union else [tp]
-    return len(args) == 1 and typing.get_origin(args[0]) is tuple
+    return typing.get_origin(_without_none(typing.get_type_hints(cls).get(name))) is tuple
 
 
 @functools.lru_cache(maxsize=None)

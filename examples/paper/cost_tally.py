@@ -28,14 +28,16 @@ from pathlib import Path
 RESULTS = Path(__file__).resolve().parents[2] / "docs" / "results"
 # Per kind of machine (its folder: docs/results/<name>/): the estimate file of each table, and the measured clocks as
 # (file, table, clock column), oldest first: a later file's clock replaces an earlier one's for the same cell.
+#: A machine where each table ran as one sweep (resumed over sittings): the sweeps' own cell tables.
+ONE_SWEEP_PER_TABLE = {
+    "estimates": {"table1": "table1_estimate_2workers.txt", "table3": "table3_estimate_2workers.txt"},
+    "measured": [
+        ("table1_cells.csv", "table1", "wall_time_s"),  # optoenc sweep examples/paper/table1.yaml
+        ("table3_cells.csv", "table3", "wall_time_s"),  # optoenc sweep examples/paper/table3.yaml
+    ],
+}
 MACHINES = {
-    "xeon": {
-        "estimates": {"table1": "table1_estimate_2workers.txt", "table3": "table3_estimate_2workers.txt"},
-        "measured": [
-            ("table1_cells.csv", "table1", "wall_time_s"),  # optoenc sweep examples/paper/table1.yaml
-            ("table3_cells.csv", "table3", "wall_time_s"),  # optoenc sweep examples/paper/table3.yaml
-        ],
-    },
+    "xeon": ONE_SWEEP_PER_TABLE,
     "epyc": {
         "estimates": {"table1": "table1_estimate_2workers_separable.txt",
                       "table3": "table3_estimate_2workers_separable.txt"},
@@ -50,13 +52,7 @@ MACHINES = {
             ("canvas_rows_table3_cells.csv", "table3", "clock_s"),  # learned-SLM cells, the operator by canvas row
         ],
     },
-    "zen4": {
-        "estimates": {"table1": "table1_estimate_2workers.txt", "table3": "table3_estimate_2workers.txt"},
-        "measured": [
-            ("table1_cells.csv", "table1", "wall_time_s"),  # optoenc sweep examples/paper/table1.yaml
-            ("table3_cells.csv", "table3", "wall_time_s"),  # optoenc sweep examples/paper/table3.yaml
-        ],
-    },
+    "zen4": ONE_SWEEP_PER_TABLE,
 }
 _LINE = re.compile(r"^\s*\w+\s+([\d.]+) s \((\w+)\)\s+(\S+)\s*$")
 
