@@ -10,10 +10,9 @@ both), and the least disturbed mean is kept. Printed per pass: both times, their
 the same bfloat16 numbers bit for bit.
 
 * forward: ``ry (a h, Hp) x u[b] (Hp, w)`` for each column ``b``, written into the ``(b, a h, w)`` layout,
-  against ``ry x u (Hp, b w)`` and its ``(a h, b, w) -> (b, a h, w)`` copy (optoenc's since session 29:
-  the same numbers);
+  against ``ry x u (Hp, b w)`` and its ``(a h, b, w) -> (b, a h, w)`` copy (optoenc's: the same numbers);
 * backward: ``ry^T (Hp, a h) x grad[b] (a h, w)`` for each column (optoenc's) against the gradient's
-  ``(a h, b w)`` copy and one product (another summation order: not adopted, docs/benchmarks.md).
+  ``(a h, b w)`` copy and one product (another summation order, so other bfloat16 numbers: not used).
 """
 
 from __future__ import annotations

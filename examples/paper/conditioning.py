@@ -4,8 +4,9 @@ The same cached, noise-free embeddings of ``ENCODER`` at ``EMBEDDING``, the same
 regression, or ``--decoder fcnn``), the same optimiser as Table 1 (Adam 1e-3, batch 200, 50 epochs,
 40 dB noise drawn anew every epoch; the epoch selected on validation, its test accuracy printed), with
 the embedding normalised three ways: a scalar mean and standard deviation (Table 1's fixed-encoder
-protocol, ``standardize``), per pixel, and ZCA-whitened by the training embeddings' covariance (what
-``decoder.embedding_norm=whiten`` estimates with running statistics during training). For a model whose
+protocol, ``standardize``), per pixel, and ZCA-whitened by the training embeddings' covariance (what the
+experiment-only whitening decoder setting estimates with running statistics during training,
+docs/notes/whitening.md). For a model whose
 first operation is linear the three are the same set of functions, so a difference is the optimiser's,
 not the camera's. It also prints the pixels' mean absolute correlation and the covariance's condition
 number.

@@ -13,7 +13,7 @@ twins in Tables 1 and 3 (precision.csv / precision.md); ``--table3-paper`` the p
 
 Each sweep is run first with ``optoenc sweep examples/paper/table1.yaml`` (and table3.yaml); missing
 or unfinished cells are left out of the tables (their count is printed), so this can be re-run as
-cells finish over several sittings.
+more cells finish.
 """
 
 from __future__ import annotations
@@ -256,7 +256,7 @@ def _learned_psfs(planned, out: Path) -> Path | None:
 
 def _embeddings(planned, out: Path, n: int = 4) -> Path | None:
     """The same test digits through every encoder at every size (learned ones: their trained checkpoint)."""
-    from optoenc.config import build_encoder, compose
+    from optoenc.config import encoder_from_run, compose
     from optoenc.training.pictures import _figure, _save
     from optoenc.plugins import get_registry
     from optoenc.training import checkpoint_path, load_encoder
@@ -275,7 +275,7 @@ def _embeddings(planned, out: Path, n: int = 4) -> Path | None:
                     continue
                 encoder = load_encoder(p.run, p.path)
             else:
-                encoder = build_encoder(compose(overrides=[f"sensor.embedding=[{a},{b}]"], names={"encoder": enc}))
+                encoder = encoder_from_run(compose(overrides=[f"sensor.embedding=[{a},{b}]"], names={"encoder": enc}))
             with torch.no_grad():
                 rows.append((f"{enc}\n{emb}", encoder.eval().measure(digits)))
     if not rows:

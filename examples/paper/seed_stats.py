@@ -1,20 +1,16 @@
 """Learned vs fixed SLM at 24x32 under each transform (drawn once): mean ± sample std over seeds, Welch t.
 
-    python examples/paper/seed_stats.py [CELLS]   # CELLS: default docs/results/rerun/sweep_cells/table3
-    python examples/paper/seed_stats.py --epyc    # the AMD machines' runs with the axis-by-axis PSF
+    python examples/paper/seed_stats.py [CELLS]   # CELLS: default docs/results/table3_seeds
 
-Reads each cell's summary.json (validation-selected test accuracy), or with ``--epyc`` the accuracies of
-docs/results/epyc/ (learned SLM: ``propagation_table3_cells.csv``, the axis-by-axis PSF; fixed SLM:
-``table3_fixed_cells.csv``, the epoch loop); cells with transforms redrawn every epoch are left out.
-(``sorted_table3_cells.csv`` re-ran six of those learned cells for their clocks, with the build's rows
-sorted by band; their accuracies are within the seed spread of these and are not pooled with them.)
-|t| well above 2 puts the difference beyond seed noise.
+Reads each cell's summary.json (validation-selected test accuracy) in CELLS, a sweep's cells folder of
+examples/paper/table3.yaml; cells with transforms redrawn every epoch are left out. The default folder holds
+Table 3's 24x32 fixed and learned SLM cells, three seeds each (five under perspective). |t| well above 2 puts the
+difference beyond seed noise.
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
 import re
@@ -23,10 +19,6 @@ from pathlib import Path
 
 TRANSFORMS = ("shift", "rescale", "rotate", "perspective")
 RESULTS = Path(__file__).resolve().parents[2] / "docs" / "results"
-EPYC = RESULTS / "epyc"
-# (file, accuracy column) per encoder for --epyc
-EPYC_FILES = {"learned_slm": ("propagation_table3_cells.csv", "test_acc"),
-              "fixed_slm": ("table3_fixed_cells.csv", "epyc_test_acc")}
 
 
 def _wanted(name: str, encoder: str, transform: str) -> bool:
@@ -40,24 +32,13 @@ def accuracies(cells: Path, encoder: str, transform: str) -> list[float]:
             if _wanted(s.parent.name, encoder, transform)]
 
 
-def epyc_accuracies(encoder: str, transform: str) -> list[float]:
-    """The same from the AMD machines' CSVs (:data:`EPYC_FILES`)."""
-    name, column = EPYC_FILES[encoder]
-    with open(EPYC / name, newline="") as f:
-        return [float(r[column]) for r in csv.DictReader(f) if _wanted(r["cell"], encoder, transform) and r[column]]
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("cells", nargs="?", type=Path, default=RESULTS / "rerun" / "sweep_cells" / "table3",
-                    help="a sweep's cells folder (default: the re-run's committed cells)")
-    ap.add_argument("--epyc", action="store_true", help="read the AMD machines' CSVs in docs/results/epyc instead")
+    ap.add_argument("cells", nargs="?", type=Path, default=RESULTS / "table3_seeds",
+                    help="a sweep's cells folder (default: docs/results/table3_seeds)")
     args = ap.parse_args()
     for t in TRANSFORMS:
-        if args.epyc:
-            learned, fixed = epyc_accuracies("learned_slm", t), epyc_accuracies("fixed_slm", t)
-        else:
-            learned, fixed = accuracies(args.cells, "learned_slm", t), accuracies(args.cells, "fixed_slm", t)
+        learned, fixed = accuracies(args.cells, "learned_slm", t), accuracies(args.cells, "fixed_slm", t)
         if min(len(learned), len(fixed)) < 2:
             print(f"{t}: fewer than two seeds (learned {len(learned)}, fixed {len(fixed)})")
             continue

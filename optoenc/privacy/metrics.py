@@ -1,7 +1,7 @@
 """Attack metrics: image quality, readability and re-identification, per image.
 
-* PSNR and SSIM (torchmetrics) of the reconstruction, clipped to the scene's
-  range [0, 1], against the scene.
+* PSNR and the standard SSIM (:mod:`optoenc.metrics`: Wang et al. 2004, valid region) of the
+  reconstruction, clipped to the scene's range [0, 1], against the scene.
 * Readability: whether a fixed classifier trained on clean scenes (no optics,
   :mod:`optoenc.privacy.reader`) reads the right class from the reconstruction.
 * Re-identification: whether the reconstruction is more similar (Pearson
@@ -16,6 +16,7 @@ import math
 
 import torch
 
+from .. import metrics as quality
 from ..errors import ConfigError
 
 __all__ = ["psnr", "ssim", "correlation", "reid_gallery", "reid_top1", "summarize"]
@@ -28,19 +29,17 @@ def _prep(recon: torch.Tensor, scene: torch.Tensor) -> tuple[torch.Tensor, torch
 
 
 def psnr(recon: torch.Tensor, scene: torch.Tensor) -> torch.Tensor:
-    """Per-image PSNR in dB (data range 1), ``(B,)``."""
-    from torchmetrics.functional.image import peak_signal_noise_ratio
-
+    """Per-image PSNR in dB (data range 1) of a reconstruction clipped to [0, 1], ``(B,)`` float32."""
     r, s = _prep(recon, scene)
-    return peak_signal_noise_ratio(r, s, data_range=1.0, reduction="none", dim=(1, 2, 3))
+    return quality.psnr(r, s, data_range=1.0)
 
 
 def ssim(recon: torch.Tensor, scene: torch.Tensor) -> torch.Tensor:
-    """Per-image SSIM (Gaussian window 11, sigma 1.5, data range 1), ``(B,)``."""
-    from torchmetrics.functional.image import structural_similarity_index_measure
-
+    """Per-image standard SSIM (Wang et al. 2004, :func:`optoenc.metrics.ssim`) of a reconstruction clipped to
+    [0, 1], ``(B,)`` float32 (computed in float64). For images already in [0, 1] this is scikit-image's ``structural_similarity(...,
+    gaussian_weights=True, sigma=1.5, use_sample_covariance=False, data_range=1)``."""
     r, s = _prep(recon, scene)
-    return structural_similarity_index_measure(r, s, data_range=1.0, reduction="none")
+    return quality.ssim(r, s, data_range=1.0)
 
 
 def correlation(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
