@@ -1,6 +1,6 @@
 """The scene operator's two products in either order, timed side by side (forward and backward).
 
-``imaging.scene_operator`` contracts ``ry (a, h, Hp)``, the PSF ``(C, Hp, Wp)`` and ``rx (b, w, Wp)``
+``operator.scene_operator`` contracts ``ry (a, h, Hp)``, the PSF ``(C, Hp, Wp)`` and ``rx (b, w, Wp)``
 in whichever order costs fewer multiply-adds. This script times the rows-first order (the reference,
 what every scene used before) against the library's (columns first on both cases here), alternated
 in one process, on the learned SLM's real correlation tensors: Table 1's 28 x 28 digit and Table 3's 24x32 canvas
@@ -23,23 +23,23 @@ def rows_first(psf, ry, rx):
 
 
 def columns_first(psf, ry, rx):
-    """``imaging.scene_operator``, which takes the columns first on both cases below (asserted there)."""
-    from optoenc.encoders import imaging
+    """``operator.scene_operator``, which takes the columns first on both cases below (asserted there)."""
+    from optoenc.encoders import operator
 
-    return imaging.scene_operator(psf, ry, rx)
+    return operator.scene_operator(psf, ry, rx)
 
 
 def cases():
     """``(name, psf, ry, rx)``: the learned SLM at 24x32 on Table 1's digit and on Table 3's canvas."""
-    from optoenc.config import build_encoder, compose
+    from optoenc.config import encoder_from_run, compose
     from optoenc.training.run import canvas_for
 
     run = compose(names={"encoder": "learned_slm", "decoder": "fcnn"}, overrides=["sensor.embedding=[24,32]"])
-    enc = build_encoder(run)
+    enc = encoder_from_run(run)
     psf = enc.psf().detach()
     canvas = canvas_for(run, enc, (28, 28))
-    yield "Table 1, 28 x 28 digit", psf, *enc._geometry_factors((28, 28), enc.object_height_px(None), "cpu")[:2]
-    yield f"Table 3, {canvas.shape[0]} x {canvas.shape[1]} canvas", psf, *enc._geometry_factors(
+    yield "Table 1, 28 x 28 digit", psf, *enc._operators.geometry_factors(enc, (28, 28), enc.object_height_px(None), "cpu")[:2]
+    yield f"Table 3, {canvas.shape[0]} x {canvas.shape[1]} canvas", psf, *enc._operators.geometry_factors(enc,
         canvas.shape, enc.object_height_px(canvas.fov[0]), "cpu")[:2]
 
 

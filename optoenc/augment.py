@@ -24,10 +24,9 @@ from typing import Any, ClassVar, Sequence
 import torch
 from torch import nn
 
-from .encoders.base import _coerce
 from .encoders.imaging import area_matrix, paste
 from .errors import ConfigError
-from .settings import Documented, Settings, setting
+from .settings import Documented, Settings, coerce, setting
 
 __all__ = [
     "CanvasGeometry", "canvas_geometry", "to_canvas", "ObjectState", "Augmentation", "SeparableAugmentation",
@@ -203,7 +202,7 @@ class Augmentation(Documented, nn.Module):
 
     def __init__(self, config: Any = None):
         super().__init__()
-        self.config = _coerce(self.Config, config, f"augment.{self.name}")
+        self.config = coerce(self.Config, config, f"augment.{self.name}")
 
     def apply(
         self, canvas: torch.Tensor, geometry: CanvasGeometry, state: ObjectState, u: torch.Tensor
@@ -276,7 +275,7 @@ class Compose(nn.Module):
     """
 
     #: :meth:`place_window` resamples each object's band of the window and pastes it (the same canvases,
-    #: exactly); False: the whole window (the reference of ``optoenc bench steps --against bands``).
+    #: exactly); False: the whole window (the reference ``benchmarks/operator_paths.py --paths bands`` times it against).
     placement_bands: ClassVar[bool] = True
 
     def __init__(self, augmentations: Sequence[Augmentation]):
@@ -342,7 +341,7 @@ class Compose(nn.Module):
         ``window = (r0, r1, c0, c1)``: the canvas part :meth:`place_window` returns. ``offsets`` ``(B, 2)``: each
         example's band's top-left pixel on the canvas (rows, cols), ``placed`` the bands ``(B, C, h, w)``; or
         None where the whole window was resampled (a band would be most of it), ``placed`` that window. The same
-        draws give the same canvases: :meth:`~optoenc.encoders.base.OpticalEncoder.measure_pasted` measures the
+        draws give the same canvases: :meth:`~optoenc.encoders.operator.SceneOperator.apply_pasted` measures the
         bands without pasting them on the window first.
         """
         if any(not isinstance(a, SeparableAugmentation) for a in self.augmentations):

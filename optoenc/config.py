@@ -3,15 +3,18 @@
 A run config has one section per settings group::
 
     seed: 0
-    encoder: {name: learned_slm, d2: 0.004, ...}   # the encoder's Config fields
+    encoder: {name: learned_slm, d2: 0.004, ...}   # the encoder's Config fields (or just `encoder: learned_slm`)
     decoder: {name: fcnn, hidden: 800, ...}
     dataset: {name: mnist, val_size: 5000, ...}
     augment: {shift: {...}, rotate: {...}}         # enabled augmentations, in order
-    scene / sensor / fidelity / trainer / output: {...}
+    scene / sensor / fidelity / trainer / output / privacy: {...}
 
 The schema of each plugin section comes from the chosen plugin's ``Config``
 dataclass, so a misspelled key fails with its full path and its valid
 neighbours, and every value is validated against its declared range.
+
+:func:`build_encoder` is the library's way to make one encoder from its
+registry name and section overrides, without a run.
 """
 
 from __future__ import annotations
@@ -20,26 +23,32 @@ import dataclasses
 import difflib
 import re
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Optional
 
+import yaml
 from omegaconf import DictConfig, OmegaConf
 from omegaconf import errors as oc_errors
 
 from . import limits
+from .encoders.fidelity import FIDELITY_PRESETS, FidelityConfig
 from .encoders.geometry import SceneConfig, SensorConfig
 from .errors import ConfigError
-from .fidelity.knobs import FIDELITY_PRESETS, FidelityConfig
 from .plugins import get_registry
-from .privacy.settings import AdversaryConfig
-from .settings import Settings, setting
+from .settings import Settings, field_value, setting
 
 __all__ = [
     "TrainerConfig",
     "OutputConfig",
+    "AdversaryConfig",
     "RunConfig",
     "DEFAULTS",
+    "SECTIONS",
+    "ENCODER_SECTIONS",
     "compose",
+    "load_yaml",
     "build_encoder",
+    "encoder_from_run",
     "to_yaml",
 ]
 
@@ -56,11 +65,6 @@ class TrainerConfig(Settings):
         "Adam learning rate of the encoder's parameters (null: lr). Higher than the decoder's because learned "
         "masks are sigmoid logits: at 1e-2 a sub-pixel can cross its range within an epoch, at 1e-3 it barely moves",
         gt=0, le=10,
-    )
-    encoder_lr_schedule: str = setting(
-        "constant", "the encoder's learning rate over the epochs: 'constant', or 'cosine' (annealed from encoder_lr "
-        "to 0 by the last epoch, so the decoder ends fitted to a settled mask); the decoder's stays lr",
-        choices=("constant", "cosine"),
     )
     weight_decay: float = setting(
         0.0, "decoupled weight decay (AdamW) of the decoder's weight matrices, per unit learning rate (each step "
@@ -146,11 +150,26 @@ class OutputConfig(Settings):
     examples: int = setting(8, "example measurements drawn as pictures", ge=0, le=64)
 
 
+@dataclass
+class AdversaryConfig(Settings):
+    """Privacy-aware training (`fit`, section `privacy`): the encoder trained against a reconstruction adversary.
+
+    Objective per batch: cross-entropy - ``adversary_weight`` * the adversary's reconstruction MSE, the
+    adversary (an MLP from the noisy embedding to the scene) trained alongside on its own MSE
+    (:mod:`optoenc.training.adversary`). 0 (the default) is plain training, nothing added.
+    """
+
+    adversary_weight: float = setting(0.0, "weight lambda of the adversary's reconstruction MSE subtracted from the "
+                                      "classifier loss; 0: off (plain training)", ge=0)
+    adversary_hidden: int = setting(256, "units of each of the adversary's two hidden layers", ge=1)
+    adversary_lr: float = setting(1e-3, "the adversary's Adam learning rate", gt=0)
+
+
 #: The one table of default plugin names.
 DEFAULTS = {"encoder": "learned_slm", "decoder": "fcnn", "dataset": "mnist"}
 
-#: Sections whose schema is fixed (not chosen by a plugin name).
-_FIXED = {
+#: Sections whose schema is fixed (not chosen by a plugin name): the one table of them.
+SECTIONS: dict[str, type] = {
     "scene": SceneConfig,
     "sensor": SensorConfig,
     "fidelity": FidelityConfig,
@@ -158,6 +177,8 @@ _FIXED = {
     "output": OutputConfig,
     "privacy": AdversaryConfig,
 }
+#: The sections an encoder is built from (its own settings, then the shared ones it reads).
+ENCODER_SECTIONS = ("encoder", "scene", "sensor", "fidelity")
 _PLUGIN_SECTIONS = ("encoder", "decoder", "dataset")
 
 
@@ -179,7 +200,7 @@ class RunConfig:
     tree: DictConfig
     #: When ``fidelity.preset`` was ``auto``: the measured decision (error, cost).
     fidelity_auto: Optional[dict] = None
-    #: Privacy-aware training (section ``privacy``, :mod:`optoenc.privacy.adversary`); off by default.
+    #: Privacy-aware training (section ``privacy``, :mod:`optoenc.training.adversary`); off by default.
     privacy: AdversaryConfig = dataclasses.field(default_factory=AdversaryConfig)
 
     def to_yaml(self) -> str:
@@ -263,13 +284,68 @@ def _translate(err: Exception, schema: DictConfig, user: Any = None) -> ConfigEr
     return ConfigError(path, value, _message(err))
 
 
+#: A size written as text on the command line, ``24x32`` (YAML would read ``0x32`` as a hexadecimal number).
+_SIZE_TEXT = re.compile(r"^\s*\d+(\s*[xX]\s*\d+)+\s*$")
+
+
 def _names_from(user: DictConfig, cli_names: dict[str, str | None], section: str) -> str:
     if cli_names.get(section):
         return str(cli_names[section])
     node = user.get(section) if isinstance(user, DictConfig) else None
     if isinstance(node, DictConfig) and node.get("name"):
         return str(node["name"])
+    if isinstance(node, str) and node:  # `encoder: diffuser`, the same as `encoder: {name: diffuser}`
+        return node
     return DEFAULTS[section]
+
+
+def _sequences_from_text(user: dict, classes: dict[str, type]) -> None:
+    """Tuple and list settings given as text (``sensor.embedding=24x32``) made lists, in place, before the merge
+    (the schema would refuse the text); :func:`optoenc.settings.field_value` reads them."""
+    for section, cls in classes.items():
+        node = user
+        for part in section.split("."):
+            node = node.get(part) if isinstance(node, dict) else None
+        if not isinstance(node, dict):
+            continue
+        for key, value in node.items():
+            if isinstance(value, str):
+                try:
+                    new = field_value(cls, key, value)
+                except ConfigError as err:
+                    raise err.with_prefix(section) from None
+                if new is not value:
+                    node[key] = list(new)
+
+
+def load_yaml(path: str | Path, key: str = "--config") -> DictConfig:
+    """A run configuration file, parsed.
+
+    Args:
+        path: the YAML file.
+        key: what names the file in errors (the command line's option).
+
+    Raises:
+        ConfigError: the file is missing, is not valid YAML (one line: ``file:line:column``
+            and the parser's message) or does not hold a mapping of sections.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(key, str(path), "file not found")
+    try:
+        tree = OmegaConf.load(p)
+    except yaml.MarkedYAMLError as err:
+        mark = err.problem_mark or err.context_mark
+        where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark is not None else str(path)
+        what = err.problem or err.context or "not valid YAML"
+        if err.context and err.problem and err.context_mark is not None:
+            what += f" ({err.context} that starts at line {err.context_mark.line + 1})"
+        raise ConfigError(key, where, f"not valid YAML: {what}") from None
+    except Exception as err:  # encoding errors, omegaconf's own (a key that is not a string, ...)
+        raise ConfigError(key, str(path), f"not valid YAML ({str(err).splitlines()[0]})") from None
+    if not isinstance(tree, DictConfig):
+        raise ConfigError(key, str(path), "must hold a mapping of sections (seed:, encoder:, ...) at its top level, not a list")
+    return tree
 
 
 def compose(
@@ -302,6 +378,9 @@ def compose(
         user = OmegaConf.merge(*(file_configs or [OmegaConf.create({})]))
         for item in overrides or []:
             try:
+                key, eq, text = item.partition("=")
+                if eq and _SIZE_TEXT.match(text):  # 24x32 stays text for the setting to read (0x32 is not hex)
+                    item = f"{key}='{text.strip()}'"
                 dotlist = OmegaConf.from_dotlist([item])
             except Exception as err:  # omegaconf grammar or YAML errors of one override
                 raise ConfigError(item.split("=", 1)[0], item.partition("=")[2], f"not a valid value ({_message(err)})") from None
@@ -328,7 +407,7 @@ def compose(
     for s in _PLUGIN_SECTIONS:
         schema[s] = _node(classes[s].Config, chosen[s])
     schema["augment"] = OmegaConf.create({a: _node(c.Config) for a, c in aug_classes.items()})
-    for s, cls in _FIXED.items():
+    for s, cls in SECTIONS.items():
         schema[s] = _node(cls)
     OmegaConf.set_struct(schema, True)
 
@@ -343,10 +422,14 @@ def compose(
     for s in _PLUGIN_SECTIONS:
         if isinstance(user.get(s), dict):
             user[s].pop("name", None)
+        elif isinstance(user.get(s), str):  # the plugin's name alone, read above
+            user[s] = {}
     if augment is not None and isinstance(user.get("augment"), dict):
         user["augment"] = {k: v for k, v in user["augment"].items() if k in aug_classes}
     if isinstance(user.get("augment"), dict):
         user["augment"] = {k: (v or {}) for k, v in user["augment"].items()}
+    _sequences_from_text(user, {**{s: classes[s].Config for s in _PLUGIN_SECTIONS}, **SECTIONS,
+                                **{f"augment.{a}": c.Config for a, c in aug_classes.items()}})
     try:
         tree = OmegaConf.merge(schema, user)
     except oc_errors.OmegaConfBaseException as err:
@@ -367,12 +450,43 @@ def compose(
             raise err.with_prefix(section) from None
 
     objs = {s: build(s, classes[s].Config, tree[s]) for s in _PLUGIN_SECTIONS}
-    objs.update({s: build(s, cls, tree[s]) for s, cls in _FIXED.items()})
+    objs.update({s: build(s, cls, tree[s]) for s, cls in SECTIONS.items()})
     augs = {a: build(f"augment.{a}", c.Config, tree.augment[a]) for a, c in aug_classes.items()}
     return RunConfig(seed=int(tree.seed), names=chosen, augment=augs, tree=tree, **objs)
 
 
-def build_encoder(run: RunConfig, fidelity: FidelityConfig | None = None):
-    """Instantiate the run's encoder (optionally at another fidelity)."""
+def build_encoder(name: str, **sections: Any):
+    """An encoder from its registry name, each settings section its defaults unless given.
+
+    Example::
+
+        enc = optoenc.build_encoder("learned_slm", sensor={"embedding": [6, 8]}, fidelity={"preset": "fast"})
+        lens = optoenc.build_encoder("lens", encoder={"d2": 5e-3})
+
+    Args:
+        name: the encoder's registry name (``optoenc encoders`` lists them).
+        **sections: ``encoder`` (the encoder's own settings), ``scene``,
+            ``sensor``, ``fidelity``: each a mapping of settings (those not
+            given keep their defaults) or a settings object.
+
+    Raises:
+        PluginError: an unknown encoder name. ConfigError: an unknown section
+            or setting, or a value that is not allowed.
+    """
+    if not isinstance(name, str):
+        raise ConfigError("encoder", type(name).__name__, "must be a registry name such as 'learned_slm' (the "
+                          "encoder of a RunConfig: optoenc.config.encoder_from_run)")
+    for key, value in sections.items():
+        if key not in ENCODER_SECTIONS:
+            close = difflib.get_close_matches(key, ENCODER_SECTIONS, n=1)
+            hint = f"did you mean {close[0]}? " if close else ""
+            raise ConfigError(key, value, f"unknown section; {hint}an encoder is built from {', '.join(ENCODER_SECTIONS)}")
+    cls = get_registry("encoder").get(name)
+    return cls(sections.get("encoder"), scene=sections.get("scene"), sensor=sections.get("sensor"),
+               fidelity=sections.get("fidelity"))
+
+
+def encoder_from_run(run: RunConfig, fidelity: FidelityConfig | None = None):
+    """The encoder of a composed run configuration (optionally at another fidelity)."""
     cls = get_registry("encoder").get(run.names["encoder"])
     return cls(run.encoder, scene=run.scene, sensor=run.sensor, fidelity=fidelity or run.fidelity)

@@ -2,9 +2,7 @@
 
 The one source of truth for every device constant: the sensor, the scene,
 the LCD (ST7735R), the lens, the coded aperture and the phase mask.
-Encoders, sensors and tests read these names, never literals
-(``optoenc.encoders.constants``, the old name, is this same module: see
-:data:`optoenc.MOVED`).
+Encoders, sensors and tests read these names, never literals.
 """
 
 from __future__ import annotations
@@ -15,6 +13,7 @@ __all__ = [
     "WAVELENGTHS_RGB",
     "CHANNELS_RGB",
     "GRAYSCALE_WEIGHTS",
+    "LUMINANCE_WEIGHTS",
     "SCENE_HEIGHT",
     "SCENE_DISTANCE",
     "SNR_DB",
@@ -53,6 +52,9 @@ WAVELENGTHS_RGB = (640e-9, 550e-9, 460e-9)
 #: 0.587, 0.114): a grayscale scene on a grayscale sensor sees the PSF
 #: sum_c w_c PSF_c. The peers' code had a 0.144 typo; this is the only copy.
 GRAYSCALE_WEIGHTS = (0.299, 0.587, 0.114)
+#: Linear-light luminance weights of R, G, B (Rec. 709 primaries, those of sRGB): an RGB image or scene made
+#: gray (the datasets' gray images; an RGB scene on a gray sensor, :mod:`optoenc.encoders.sensor`).
+LUMINANCE_WEIGHTS = (0.2126, 0.7152, 0.0722)
 
 #: Paper scene: MNIST digit of 12 cm height, 40 cm from the encoder.
 SCENE_HEIGHT = 0.12

@@ -13,7 +13,7 @@ wants the fast products on every machine says ``auto``:
 
 The resolved values are what a run records (its ``summary.json``). Where the CPU has a bfloat16
 matrix unit (AMX, :func:`matrix_units`), a bfloat16 scene operator is built by dense products, which
-that unit runs faster than many small ones (:func:`optoenc.encoders.imaging.scene_operator`).
+that unit runs faster than many small ones (:func:`optoenc.encoders.operator.scene_operator`).
 """
 
 from __future__ import annotations

@@ -22,12 +22,17 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import re
 import typing
+from collections.abc import Mapping
 from typing import Any, Iterable
 
 from .errors import ConfigError
 
-__all__ = ["Settings", "setting", "validate", "describe", "to_dict", "first_line", "Documented"]
+__all__ = [
+    "Settings", "setting", "validate", "coerce", "field_value", "describe", "to_dict", "first_line", "Documented",
+    "parse_hw",
+]  # fmt: skip
 
 
 def setting(
@@ -207,17 +212,86 @@ def validate(config: Any) -> None:
             _check_scalar(f.name, value, f.metadata, expected)
 
 
+_SEPARATORS = re.compile(r"\s*[x,]\s*|\s+")
+
+
+def _sequence_from_text(name: str, text: str, element: Any, length: int | None) -> list:
+    """``"24x32"``, ``"24,32"``, ``"[24, 32]"`` or ``"24 32"`` -> ``[24, 32]`` (elements as ``element``)."""
+    example = "x".join(["24", "32", "8"][: length or 2])
+    what = f"{length} values" if length else "values"
+    body = text.strip().removeprefix("[").removesuffix("]").strip().lower()
+    convert = element if element in (int, float) else (lambda v: v)
+    try:
+        return [convert(v) for v in _SEPARATORS.split(body)] if body else []
+    except ValueError:
+        raise ConfigError(name, text, f"must be {what}, written {example} or [{example.replace('x', ',')}]") from None
+
+
+def field_value(cls: type, name: str, value: Any) -> Any:
+    """``value`` as field ``name`` of the settings class ``cls`` holds it.
+
+    A list or tuple setting given as text (the command line's ``24x32``,
+    ``24,32`` or ``[24,32]``) becomes the tuple or list of its elements; a
+    tuple setting given as a list becomes a tuple (the type of its default),
+    so a configuration built from its own :func:`to_dict` equals it. Every
+    other value is returned as it is (:func:`validate` judges it).
+
+    Raises:
+        ConfigError: text that is not a list of the setting's element type.
+    """
+    element, length, sequence = _field_types(cls).get(name, (None, None, False))
+    if not sequence:
+        return value
+    if isinstance(value, str):
+        value = _sequence_from_text(name, value, element, length)
+    if isinstance(value, list) and _is_tuple(cls, name):
+        return tuple(value)
+    return value
+
+
+def coerce(cls: type, value: Any, section: str) -> Any:
+    """A ``cls`` settings object from ``value``: None (the defaults), a ``cls`` itself, or a mapping of its fields.
+
+    This is how encoders, decoders, datasets and augmentations accept their
+    settings (``Lens({"d2": 5e-3})``, ``sensor={"embedding": [6, 8]}``).
+
+    Args:
+        cls: a settings dataclass (a :class:`Settings` subclass).
+        value: None, a ``cls`` instance or a mapping of field names to values.
+        section: the settings section, named in errors (``"sensor"``).
+
+    Raises:
+        ConfigError: an unknown key (with the known ones), a value that is not
+            allowed (its key prefixed with ``section``), or a ``value`` of
+            another type.
+    """
+    if value is None:
+        return cls()
+    if isinstance(value, cls):
+        return value
+    if isinstance(value, Mapping):
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(value) - names)
+        if unknown:
+            raise ConfigError(f"{section}.{unknown[0]}", value[unknown[0]], f"unknown setting; known: {', '.join(sorted(names))}")
+        try:
+            return cls(**value)
+        except ConfigError as err:
+            raise err.with_prefix(section) from None
+    raise ConfigError(section, value, f"must be a {cls.__name__} or a mapping")
+
+
 @dataclasses.dataclass
 class Settings:
-    """Base of every settings dataclass: validated on construction."""
+    """Base of every settings dataclass: coerced (:func:`field_value`) and validated on construction."""
 
     def __post_init__(self) -> None:
-        # A tuple setting given as a list (a mapping, YAML, the command line) is held as the tuple its default is,
-        # so a configuration built from its own to_dict() equals it.
         for name, (_, _, sequence) in _field_types(type(self)).items():
-            value = getattr(self, name, None)
-            if sequence and isinstance(value, list) and _is_tuple(type(self), name):
-                setattr(self, name, tuple(value))
+            if sequence:
+                value = getattr(self, name, None)
+                new = field_value(type(self), name, value)
+                if new is not value:
+                    setattr(self, name, new)
         validate(self)
 
     def replace(self, **changes: Any) -> "Settings":

@@ -63,6 +63,7 @@ __all__ = [
     "check_determinism",
     "check_nonnegative",
     "check_psf",
+    "check_exposure",
     "check_presets",
     "check_cache_key",
     "check_linearity",
@@ -264,6 +265,12 @@ def check_output_shape(cls: type, **setup: Any) -> str | None:
     for c in (1, 3):
         out = rgb(scenes(2, channels=c), noise=False)
         assert tuple(out.shape) == (2, 3, a, b), f"{label}: RGB sensor, {c}-channel scene: shape {tuple(out.shape)}"
+    out = enc(scenes(2, channels=3), noise=False)  # an RGB scene on the gray sensor: its luminance
+    assert tuple(out.shape) == (2, 1, a, b), f"{label}: gray sensor, 3-channel scene: shape {tuple(out.shape)}"
+    bayer = make_encoder(cls, **{**setup, "sensor": {**_as_dict(setup.get("sensor")), "color": "bayer"}})
+    out = bayer(scenes(2, channels=3), noise=False)
+    assert bayer.output_shape == (1, a, b) and tuple(out.shape) == (2, 1, a, b), (
+        f"{label}: Bayer sensor: shape {tuple(out.shape)}, expected (2, 1, {a}, {b})")
     return None
 
 
@@ -351,13 +358,37 @@ def check_psf(cls: type, **setup: Any) -> str | None:
 
 
 @_check
+def check_exposure(cls: type, **setup: Any) -> str | None:
+    """``throughput()`` is in ``(0, 1]``; under ``sensor.exposure=fixed`` the PSF is the default PSF times it, and
+    a noisy reading (shot and read noise, full well, ADC) is finite."""
+    import math
+
+    import torch
+
+    label = _label(cls)
+    enc = make_encoder(cls, **setup)
+    t = enc.throughput()
+    assert math.isfinite(t) and 0 < t <= 1 + TOLERANCES["psf_sum"], f"{label}: throughput() = {t}, must be in (0, 1]"
+    sensor = {**_as_dict(setup.get("sensor")), "exposure": "fixed", "noise": "poisson", "photons": 1e3,
+              "read_noise": 2.0, "full_well": 5e2, "adc_bits": 10}
+    fixed = make_encoder(cls, **{**setup, "sensor": sensor})
+    with torch.no_grad():
+        psf, ref = fixed.psf().double(), enc.psf().double() * t
+        gap = float((psf - ref).abs().max()) / max(float(ref.abs().max()), 1e-300)
+        assert gap <= _tol(fixed.psf().dtype), f"{label}: fixed-exposure psf() != psf() x throughput (gap {gap:.3g})"
+        out = fixed(scenes(2, dtype=fixed.optics_dtype))
+    assert torch.isfinite(out).all(), f"{label}: non-finite fixed-exposure reading"
+    return None
+
+
+@_check
 def check_presets(cls: type, **setup: Any) -> str | None:
     """Every fidelity preset, ``reference`` included, on the setup's small grid: typed knobs with the encoder's
     own ``fidelity_presets`` applied, the PSF contract, and a finite embedding of the right shape (the setup's
     own preset, which every other check runs, only for its knobs)."""
     import torch
 
-    from .fidelity.knobs import FIDELITY_PRESETS, KNOB_NAMES, Knobs
+    from .encoders.fidelity import FIDELITY_PRESETS, KNOB_NAMES, Knobs
 
     own = _merge(SMALL_SETUP, setup)["fidelity"].get("preset") or "default"
     for preset in FIDELITY_PRESETS:
@@ -385,7 +416,7 @@ def check_presets(cls: type, **setup: Any) -> str | None:
 
 @_check
 def check_cache_key(cls: type, **setup: Any) -> str | None:
-    """The embedding cache key (:func:`optoenc.cache.embedding_key`) is the same for two encoders of one
+    """The embedding cache key (:func:`optoenc.training.cache.embedding_key`) is the same for two encoders of one
     configuration and changes when the PSF changes with every setting kept (e.g. an edited helper function)."""
     import torch
 
@@ -600,6 +631,7 @@ ENCODER_CHECKS: dict[str, Callable[..., str | None]] = {
     "documented": check_documented,
     "config_roundtrip": check_config_roundtrip,
     "psf": check_psf,
+    "exposure": check_exposure,
     "presets": check_presets,
     "output_shape": check_output_shape,
     "dtype": check_dtype,

@@ -1,4 +1,4 @@
-"""Privacy-aware training (`privacy.adversary_weight`, issue 12 section 4): the min-max objective's gradients."""
+"""Privacy-aware training (`privacy.adversary_weight`): the min-max objective's gradients."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from torch import nn
 
 from optoenc.config import compose
 from optoenc.errors import ConfigError
-from optoenc.privacy.adversary import Adversary, AdversaryConfig, AdversaryObjective, from_config
+from optoenc.training.adversary import Adversary, AdversaryConfig, AdversaryObjective, from_config
 
 
 def _toy():

@@ -346,7 +346,7 @@ def test_paste_puts_each_window_at_its_offset_in_any_dtype(dtype):
 def test_training_steps_under_redrawn_shifts_are_the_same_with_bands(mixed, monkeypatch):
     # End to end: a learned SLM trained three optimiser steps on digits shifted anew every step (draws from
     # torch's global RNG, as training draws them) ends with the same mask and decoder, bit for bit, whether the
-    # placement resamples each object's band (measured by measure_pasted) or the whole window (measure_window),
+    # placement resamples each object's band (measured by SceneOperator.apply_pasted) or the whole window (apply_window),
     # in float32 and in bfloat16 autocast.
     from omegaconf import OmegaConf
 
@@ -361,7 +361,7 @@ def test_training_steps_under_redrawn_shifts_are_the_same_with_bands(mixed, monk
     scenes = _digits(16, seed=7)
     from optoenc.encoders import imaging
 
-    pasted, real_paste = [], imaging.paste  # measure_pasted lays each band where the operator reads it
+    pasted, real_paste = [], imaging.paste  # apply_pasted lays each band where the operator reads it
     monkeypatch.setattr(imaging, "paste", lambda *a: pasted.append(1) or real_paste(*a))
     params = {}
     for bands in (True, False):

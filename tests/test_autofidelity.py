@@ -6,10 +6,10 @@ from dataclasses import dataclass, field
 
 import pytest
 
-from optoenc.fidelity import auto as autofidelity
-from optoenc.config import build_encoder, compose
+from optoenc.bench import auto as autofidelity
+from optoenc.config import encoder_from_run, compose
 from optoenc.errors import ConfigError
-from optoenc.fidelity.knobs import FidelityConfig
+from optoenc.encoders.fidelity import FidelityConfig
 
 
 @dataclass
@@ -57,7 +57,7 @@ def test_unattainable_tolerance_is_a_clear_error(tmp_path):
 def test_an_encoder_cannot_be_built_at_auto_directly():
     run = compose(overrides=["fidelity.preset=auto"], names={"encoder": "lens"})
     with pytest.raises(ConfigError, match="resolved for a run"):
-        build_encoder(run)
+        encoder_from_run(run)
 
 
 @pytest.mark.slow
@@ -85,7 +85,7 @@ def test_auto_keeps_the_measured_psf_oversample(tmp_path):
     f2, _ = autofidelity.resolve(run, root=str(tmp_path), measure=None)  # from the disk: nothing measured
     assert f2 == f
     run.fidelity = f2  # as `optoenc fit` does
-    assert build_encoder(run).knobs.psf_oversample == s
+    assert encoder_from_run(run).knobs.psf_oversample == s
 
 
 def test_auto_measures_on_the_runs_own_dataset(tmp_path):

@@ -9,16 +9,17 @@ import torch
 
 from optoenc import bench
 from optoenc.bench import pipeline
-from optoenc.fidelity.choose import auto_fidelity, choose
+from optoenc.bench import settings as bench_settings
+from optoenc.bench.choose import auto_fidelity, choose
 from optoenc.bench.report import format_outcomes, format_sweep, format_table, outcomes, read_csv, write_csv
 from optoenc.cli import main
 from optoenc.errors import ConfigError
-from optoenc.fidelity.knobs import FIDELITY_PRESETS
+from optoenc.encoders.fidelity import FIDELITY_PRESETS
 
 # Tiny grids alias the spherical wave: expected here, and recorded by the benchmark in its rows.
 pytestmark = pytest.mark.filterwarnings("ignore::optoenc.optics.diagnostics.SamplingWarning")
 
-TINY = pipeline.Setting("tiny", "paper-grid", (48, 64), "float32", "0.5")
+TINY = bench_settings.Setting("tiny", "paper-grid", (48, 64), "float32", "0.5")
 
 
 def _scenes(n=6, seed=0):
@@ -30,16 +31,16 @@ def _scenes(n=6, seed=0):
 
 
 def test_paper_setting_is_the_papers_grid_with_a_2x_window():
-    s = pipeline.paper_setting()
+    s = bench_settings.paper_setting()
     assert (s.grid, s.dtype, s.method) == ((380, 507), "float32", "published")
-    assert pipeline.paper_grid_setting().method == "direct"
-    enc = pipeline.build_encoder("fixed_slm", s)
+    assert bench_settings.paper_grid_setting().method == "direct"
+    enc = bench_settings.build_encoder("fixed_slm", s)
     pad = enc.fidelity_padding()  # per side: a 2x window in each axis
     assert all(2 * p + n >= 2 * n for p, n in zip(pad, s.grid))
 
 
 def test_truth_is_the_full_sensor_in_float64():
-    from optoenc.bench.truth import truth_setting
+    from optoenc.bench.settings import truth_setting
 
     h = truth_setting()
     assert h.dtype == "float64" and h.grid == (3040, 4056) and h.padding == "auto"
@@ -49,8 +50,8 @@ def test_truth_is_the_full_sensor_in_float64():
 
 def test_sweep_moves_one_knob_at_a_time_from_default():
     for name in ("coded_aperture", "lens", "fixed_slm"):
-        base = pipeline.preset_setting("default", name)  # with the encoder's own measured overrides
-        pts = pipeline.sweep_settings(name)
+        base = bench_settings.preset_setting("default", name)  # with the encoder's own measured overrides
+        pts = bench_settings.sweep_settings(name)
         for s in pts:
             diff = [k for k in ("grid", "dtype", "padding", "wavelengths", "oversample", "propagation")
                     if getattr(s, k) != getattr(base, k)]
@@ -68,7 +69,7 @@ def test_sweep_moves_one_knob_at_a_time_from_default():
 
 @pytest.mark.parametrize("name", ["coded_aperture", "learned_slm", "diffuser"])
 def test_paper_pipeline_is_the_direct_path_and_matches_the_operator(name):
-    enc = pipeline.build_encoder(name, TINY)
+    enc = bench_settings.build_encoder(name, TINY)
     x = _scenes()
     with torch.no_grad():
         paper = pipeline.paper_forward(enc, x, noise=False)
@@ -77,11 +78,11 @@ def test_paper_pipeline_is_the_direct_path_and_matches_the_operator(name):
     assert torch.equal(paper, direct)
     # The documented differences from the default path are the grid, padding and FFT; on one grid the
     # exact scene operator and the per-example FFT convolution agree to float32 rounding.
-    assert pipeline.relative_error(op, direct) < 1e-4
+    assert bench_settings.relative_error(op, direct) < 1e-4
 
 
 def test_paper_pipeline_recomputes_the_psf_every_step():
-    enc = pipeline.build_encoder("fixed_slm", TINY)
+    enc = bench_settings.build_encoder("fixed_slm", TINY)
     calls = []
     orig = enc.compute_psf
     enc.compute_psf = lambda: calls.append(1) or orig()
@@ -96,22 +97,22 @@ def test_paper_pipeline_recomputes_the_psf_every_step():
 
 
 def test_one_wavelength_point_propagates_550nm_only():
-    s3 = pipeline.Setting("t", "sweep", (48, 64), "float64", "auto")
-    s1 = pipeline.Setting("t", "sweep", (48, 64), "float64", "auto", wavelengths=1)
+    s3 = bench_settings.Setting("t", "sweep", (48, 64), "float64", "auto")
+    s1 = bench_settings.Setting("t", "sweep", (48, 64), "float64", "auto", wavelengths=1)
     with torch.no_grad():
-        p3 = pipeline.build_encoder("coded_aperture", s3).psf()
-        p1 = pipeline.build_encoder("coded_aperture", s1).psf()
+        p3 = bench_settings.build_encoder("coded_aperture", s3).psf()
+        p1 = bench_settings.build_encoder("coded_aperture", s1).psf()
     assert p1.shape == p3.shape and torch.isfinite(p1).all()
-    assert pipeline.relative_error(p1, p3) > 1e-6
+    assert bench_settings.relative_error(p1, p3) > 1e-6
     with pytest.raises(ConfigError):
-        pipeline.build_encoder("diffuser", s1)
+        bench_settings.build_encoder("diffuser", s1)
 
 
 def test_sampling_flags_wraparound_without_padding():
-    s0 = pipeline.Setting("p0", "sweep", (48, 64), "float32", "0")
-    ok0, why0 = pipeline.sampling(pipeline.build_encoder("fixed_slm", s0), s0)
+    s0 = bench_settings.Setting("p0", "sweep", (48, 64), "float32", "0")
+    ok0, why0 = pipeline.sampling(bench_settings.build_encoder("fixed_slm", s0), s0)
     assert not ok0 and "wraparound" in why0
-    assert pipeline.sampling(pipeline.build_encoder("diffuser", s0), s0) == (True, "")
+    assert pipeline.sampling(bench_settings.build_encoder("diffuser", s0), s0) == (True, "")
 
 
 @pytest.fixture
@@ -225,7 +226,7 @@ def test_outcomes_and_tables_render():
 
 
 def test_cli_bench_tiny(tmp_path, capsys):
-    rc = main(["bench", "--encoders", "diffuser", "--presets", "fast", "--digits", "8", "--truth-grid", "96x128",
+    rc = main(["bench", "fidelity", "--encoders", "diffuser", "--presets", "fast", "--digits", "8", "--truth-grid", "96x128",
                "--paper-grid", "48x64", "--encode-count", "100", "--no-sweep", "--no-encode-all", "--no-speed",
                "--out", str(tmp_path)])
     assert rc == 0
@@ -241,7 +242,7 @@ def test_cli_bench_tiny(tmp_path, capsys):
 
 
 def test_cli_bench_bad_input(capsys):
-    assert main(["bench", "--truth-grid", "12by3"]) == 2
+    assert main(["bench", "fidelity", "--truth-grid", "12by3"]) == 2
     assert main(["bench", "auto"]) == 2
     err = capsys.readouterr().err
     assert "--truth-grid" in err and "--encoder" in err
@@ -264,7 +265,7 @@ def test_run_measures_the_given_dataset_not_mnist(coarse_truth):
     rows = pipeline.run(["lens"], ["fast"], digits=4, sweep=False, paper=False, truth_grid=(96, 128),
                         encode_count=8, steps=1, batch=6, splits=Splits(split(6), split(2), split(4), 3))
     assert [r["kind"] for r in rows] == ["truth", "preset"] and 0 <= rows[1]["error"] < 1
-    data = pipeline._data(4, 6, 8, Splits(split(6), split(2), split(4), 3))
+    data = pipeline.scenes(4, 6, 8, Splits(split(6), split(2), split(4), 3))
     assert data.num_classes == 3 and data.digits.shape == (4, 1, 16, 20)
 
 
@@ -278,9 +279,9 @@ def test_cli_bench_steps_bad_input(capsys, tmp_path):
 
 
 @pytest.mark.filterwarnings("ignore")  # the 48 x 64 grid's sampling warning
-def test_bench_steps_times_both_settings_of_a_cell(tmp_path):
-    # A learned cell under rotate on a small grid: both columns are measured steps, and the epoch figure is the
-    # step times the epoch's batches. No speed is asserted (the machine may be shared): that is the command's job.
+def test_bench_steps_times_a_cell(tmp_path):
+    # A learned cell under rotate on a small grid: the step is measured, and the epoch figure is the step times
+    # the epoch's batches. No speed is asserted (the machine may be shared): that is the command's job.
     from optoenc.bench import steps
 
     spec = tmp_path / "s.yaml"
@@ -288,15 +289,10 @@ def test_bench_steps_times_both_settings_of_a_cell(tmp_path):
         "name: s\nbase: {dataset: {train_size: 400, val_size: 100, test_size: 200}, sensor: {embedding: [6, 8]},"
         " fidelity: {grid: [48, 64]}, trainer: {batch_size: 100}}\n"
         "axes: {encoder: [learned_slm], decoder: [logistic], augment: [rotate]}\n")
-    for against in steps.AGAINST:
-        (row,) = steps.compare(spec, repeats=1, steps=1, against=against)
-        assert row["reference_s"] > 0 and row["candidate_s"] > 0 and row["epoch_steps"] == 4
-        assert row["speedup"] == pytest.approx(row["reference_s"] / row["candidate_s"])
-        assert row["candidate_epoch_s"] == pytest.approx(4 * row["candidate_s"])
-        table = steps.format_table([row])
-        assert "| base | " in table and steps.AGAINST[against][1] in table  # the cell is the spec's base
-    with pytest.raises(ConfigError, match="--against"):
-        steps.compare(spec, against="nothing")
+    (row,) = steps.time_steps(spec, repeats=1, steps=1)
+    assert row["step_s"] > 0 and row["epoch_steps"] == 4 and row["encoder"] == "learned_slm"
+    assert row["epoch_s"] == pytest.approx(4 * row["step_s"])
+    assert "| base | learned_slm | " in steps.format_table([row])  # the cell is the spec's base
 
 
 @pytest.mark.filterwarnings("ignore")  # the 48 x 64 grid's sampling warning

@@ -53,14 +53,14 @@ def test_cli_bench_docs_rewrites_only_the_blocks(tmp_path, capsys):
               for page, names in D.BLOCKS.items()}
     for page, body in blocks.items():
         (tmp_path / page).write_text(f"# {page}\nhand-written prose\n{body}the end\n")
-    rc = main(["bench", "--encoders", "diffuser", "--presets", "default", "--digits", "4", "--truth-grid", "96x128",
+    rc = main(["bench", "fidelity", "--encoders", "diffuser", "--presets", "default", "--digits", "4", "--truth-grid", "96x128",
                "--paper-grid", "48x64", "--encode-count", "50", "--no-sweep", "--no-encode-all", "--no-speed",
                "--no-paper", "--docs", str(tmp_path)])
     assert rc == 0
     bench_md = (tmp_path / "benchmarks.md").read_text()
     assert "hand-written prose" in bench_md and bench_md.endswith("the end\n") and "stale" not in bench_md
     assert "load average (start)" in bench_md and "load average (end)" in bench_md and "peak" in bench_md
-    assert "`optoenc bench --encoders diffuser --presets default" in bench_md  # the command as typed
+    assert "`optoenc bench fidelity --encoders diffuser --presets default" in bench_md  # the command as typed
     fid = (tmp_path / "fidelity.md").read_text()
     assert "| `diffuser` | `default` | grid 576x768 |" in fid and "stale" not in fid
     assert (tmp_path / "bench" / "bench.csv").stat().st_size > 0
@@ -70,11 +70,11 @@ def test_cli_bench_docs_without_the_pages_or_blocks_fails_before_measuring(tmp_p
     import optoenc.bench
 
     monkeypatch.setattr(optoenc.bench, "run", lambda *a, **k: pytest.fail("measured before checking --docs"))
-    assert main(["bench", "--encoders", "diffuser", "--no-encode-all", "--docs", str(tmp_path)]) == 2
+    assert main(["bench", "fidelity", "--encoders", "diffuser", "--no-encode-all", "--docs", str(tmp_path)]) == 2
     assert "--docs" in capsys.readouterr().err
     for page in D.BLOCKS:
         (tmp_path / page).write_text("prose without generated blocks\n")
-    assert main(["bench", "--encoders", "diffuser", "--no-encode-all", "--docs", str(tmp_path)]) == 2
+    assert main(["bench", "fidelity", "--encoders", "diffuser", "--no-encode-all", "--docs", str(tmp_path)]) == 2
     assert "exactly one block" in capsys.readouterr().err
 
 

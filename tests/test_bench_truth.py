@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from optoenc.bench import pipeline, published
+from optoenc.bench import settings as bench_settings
 from optoenc.bench import truth as T
 
 pytestmark = pytest.mark.filterwarnings("ignore::optoenc.optics.diagnostics.SamplingWarning")
@@ -106,7 +107,7 @@ def test_published_convolution_with_a_centred_delta_is_the_identity():
 
 
 def test_published_forward_recomputes_the_psf_and_samples_bilinearly():
-    enc = pipeline.build_encoder("fixed_slm", pipeline.paper_setting((48, 64)), (6, 8))
+    enc = bench_settings.build_encoder("fixed_slm", bench_settings.paper_setting((48, 64)), (6, 8))
     calls = []
     orig = enc.compute_psf
     enc.compute_psf = lambda: calls.append(1) or orig()
@@ -117,7 +118,7 @@ def test_published_forward_recomputes_the_psf_and_samples_bilinearly():
     assert len(calls) == 2 and a.shape == (3, 1, 6, 8) and torch.equal(a, b)
     # not the box integration of the same grid: bilinear downsampling without antialiasing samples 4 pixels
     direct = enc.measure(x, method="direct")
-    assert pipeline.relative_error(a, direct) > 1e-3
+    assert bench_settings.relative_error(a, direct) > 1e-3
 
 
 # ----------------------------------------------------------------------------- encoder hooks the bench uses
@@ -129,17 +130,17 @@ def test_one_wavelength_uses_the_field_spacing_when_oversampled():
     from optoenc.optics import intensity_psf
 
     # the 2-D propagation, which intensity_psf below computes (axis by axis is tested in tests/optics/test_separable.py)
-    s = pipeline.Setting("w", "sweep", (48, 64), "float64", "auto", wavelengths=1, oversample=3, propagation="blas")
-    enc = pipeline.build_encoder("fixed_slm", s, (6, 8))
-    m = slm_panel.rasterise(enc.weights().double(), enc.block, enc.field_grid, enc.field_spacing)[1]
+    s = bench_settings.Setting("w", "sweep", (48, 64), "float64", "auto", wavelengths=1, oversample=3, propagation="blas")
+    enc = bench_settings.build_encoder("fixed_slm", s, (6, 8))
+    m = slm_panel.rasterise(enc.displayed_amplitudes().double(), enc.block, enc.field_grid, enc.field_spacing)[1]
     q = intensity_psf(m, (550e-9,), enc.field_spacing, enc.scene_config.distance, enc.d2, normalize="power")
     q = torch.nn.functional.avg_pool2d(q.reshape(1, 1, *q.shape[-2:])[..., : 48 * 3, : 64 * 3], 3)[0]
     torch.testing.assert_close(enc.psf(), q / q.sum(), rtol=1e-10, atol=1e-14)
 
 
 def test_wavelength_chunks_give_the_same_psf():
-    s = pipeline.Setting("w", "sweep", (48, 64), "float64", "auto", oversample=3)
-    one, all3 = pipeline.build_encoder("coded_aperture", s, (6, 8)), pipeline.build_encoder("coded_aperture", s, (6, 8))
+    s = bench_settings.Setting("w", "sweep", (48, 64), "float64", "auto", oversample=3)
+    one, all3 = bench_settings.build_encoder("coded_aperture", s, (6, 8)), bench_settings.build_encoder("coded_aperture", s, (6, 8))
     one.wavelength_chunk = 1
     torch.testing.assert_close(one.psf(), all3.psf(), rtol=1e-12, atol=0)
     assert math.isclose(float(one.psf().sum()), 1.0)

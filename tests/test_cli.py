@@ -100,3 +100,93 @@ def test_version_lists_plugins(capsys):
 def test_output_name_is_used_for_the_run_directory(tmp_path, quick_args):
     assert main(["fit", "--encoder", "diffuser", "--decoder", "logistic", "--trainer.max_epochs=1", "--output.name=myrun", *quick_args]) == 0
     assert (tmp_path / "myrun" / "summary.json").exists()
+
+
+# ----------------------------------------------------------------------------- help and usage errors
+
+
+def test_top_level_help_gives_each_command_one_line(capsys):
+    from optoenc.cli.main import command_names
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["--help"])
+    assert exit_.value.code == 0
+    lines = capsys.readouterr().out.splitlines()
+    for name in command_names():
+        (line,) = [ln for ln in lines if ln.split()[:1] == [name]]  # listed once, its help on the same line
+        assert len(line.split()) > 2, line
+
+
+def test_bench_lists_its_benchmarks_and_each_has_its_own_options(capsys):
+    code, out, _ = run_cli(capsys, "bench")  # plain `optoenc bench` runs nothing: it lists the benchmarks
+    assert code == 0
+    for name in ("fidelity", "converge", "speed", "auto", "optics", "precision", "steps", "loop"):
+        assert f"    {name}" in out
+    helps = {}
+    for name in ("fidelity", "speed", "steps", "optics"):
+        with pytest.raises(SystemExit):
+            main(["bench", name, "--help"])
+        helps[name] = capsys.readouterr().out
+    assert "--truth-grid" in helps["fidelity"] and "--docs" in helps["fidelity"]
+    assert "--threads" in helps["speed"] and "--truth-grid" not in helps["speed"] and "--spec" not in helps["speed"]
+    assert "--spec" in helps["steps"] and "--docs" not in helps["steps"] and "--against" not in helps["steps"]
+    assert "--encoders" not in helps["optics"] and "--out" not in helps["optics"]
+
+
+@pytest.mark.parametrize("argv,needles", [
+    (["bench", "speed", "--repeats", "x"], ["bench speed", "--repeats", "'x'"]),
+    (["bench", "speed", "--truth-grid", "96x128"], ["unrecognized arguments: --truth-grid"]),
+    (["bench", "nosuch"], ["nosuch", "fidelity"]),
+    (["nosuch"], ["nosuch", "fit"]),
+    (["fit", "--resume"], ["--resume", "expected one argument"]),
+    (["validate"], ["--run"]),
+    (["encoders", "--bogus"], ["--bogus"]),
+    (["privacy", "--encoder", "lens", "--plaintext-n", "100,x", "--out", "x"], ["--plaintext-n", "100,x"]),
+])
+def test_usage_errors_are_one_line_exit_2(capsys, argv, needles):
+    code, _, err = run_cli(capsys, *argv)
+    assert code == 2
+    line = err.strip()
+    assert "\n" not in line and "Traceback" not in line and line.startswith("optoenc: error:"), err
+    for n in needles:
+        assert n in line
+
+
+def test_privacy_and_reconstruct_help_describe_their_own_output_and_seed(capsys):
+    helps = {}
+    for name in ("privacy", "reconstruct"):
+        with pytest.raises(SystemExit):
+            main([name, "--help"])
+        helps[name] = " ".join(capsys.readouterr().out.split())  # argparse's line wrapping undone
+    assert "re-identification" in helps["privacy"] and "noted and skipped" in helps["privacy"]
+    assert "Reconstruct scenes" in helps["reconstruct"]
+    assert "RUN_DIR/privacy with --run, DIR/privacy with --sweep" in helps["privacy"]
+    assert "RUN_DIR/reconstruct with --run" in helps["reconstruct"] and "privacy" not in helps["reconstruct"].split("--out")[-1]
+    assert "galleries" in helps["privacy"] and "attackers" in helps["privacy"]
+    assert "seed of the sensor noise added to the embeddings" in helps["reconstruct"]
+
+
+def test_bench_option_defaults_are_the_bench_settings(capsys):
+    # The parser holds them as text (building it must not import torch); the bench's settings are the source.
+    from optoenc.bench import settings as S
+    from optoenc.cli.main import build_parser
+
+    grid = lambda hw: "x".join(str(n) for n in hw)  # noqa: E731
+    parser = build_parser()
+    for name in ("fidelity", "auto"):
+        ns = parser.parse_args(["bench", name])
+        assert (ns.digits, ns.encode_count, ns.truth_grid) == (S.DIGITS, S.ENCODE_COUNT, grid(S.TRUTH_GRID))
+    assert parser.parse_args(["bench", "fidelity"]).paper_grid == grid(S.PAPER_GRID)
+    assert parser.parse_args(["bench", "converge"]).digits == S.DIGITS
+    assert parser.parse_args(["bench", "precision"]).embedding == grid(S.EMBEDDING)
+    with pytest.raises(SystemExit):
+        main(["bench", "fidelity", "--help"])
+    assert f"(default: {','.join(S.PRESETS)})" in " ".join(capsys.readouterr().out.split())
+
+
+def test_building_the_parser_imports_neither_torch_nor_lightning():
+    # `optoenc --help` and every refused command line answer without the seconds torch takes to import.
+    code = ("import sys; from optoenc.cli.main import build_parser; build_parser(); "
+            "print(sorted(m for m in ('torch', 'lightning', 'omegaconf') if m in sys.modules))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert proc.stdout.strip() == "[]"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pytest
 import torch
 from torch import nn
 
@@ -52,6 +53,46 @@ def test_batchnorm_keeps_below_average_readings_that_batchnorm_relu_zeroes():
                 assert float((z < 0).float().mean()) > 0.3  # the below-average half survives
             else:
                 assert float(z.min()) == 0.0  # rectified
+
+
+@pytest.mark.parametrize("kind", ["batchnorm", "batchnorm_relu"])
+def test_batchnorm_evaluates_a_small_scale_embedding_as_it_trains_after_a_few_steps(kind):
+    # A sensor's readings sit far from unit scale (a learned SLM's 24 x 32 pixels: variance ~1e-5). BatchNorm1d's
+    # running variance starts at 1 and decays by 0.9 a step: after 3 steps it held 0.73 of its start, 1e5 times
+    # the embedding's, and evaluation mapped every reading to ~0 (one class predicted; the first learned run's
+    # validation accuracy stayed at 0.1162). The first training batch must set the running statistics.
+    torch.manual_seed(0)
+    d = FCNN({"embedding_norm": kind}, in_shape=(1, 6, 8), learnable_encoder=True).train()
+    batches = [torch.randn(200, 1, 6, 8) * 3e-3 + 6e-3 for _ in range(3)]
+    with torch.no_grad():
+        for x in batches:
+            d(x)
+    bn = d.norm if kind == "batchnorm" else d.norm[0]
+    x = torch.cat(batches).flatten(1)
+    # Each pixel's running variance within 20 % of its variance over the three batches: the batches are draws of
+    # one distribution, so 200-example estimates agree to ~10 % (chi-square, 199 degrees of freedom: sd 10 %).
+    ratio = bn.running_var / x.var(0)
+    assert float(ratio.min()) > 0.8 and float(ratio.max()) < 1.25, ratio
+    torch.testing.assert_close(bn.running_mean, x.mean(0), rtol=0, atol=1e-3 * 3)  # within ~4 sd of a batch mean
+    # So evaluation normalises as training does: the eval-mode outputs agree with the train-mode ones.
+    d.eval()
+    with torch.no_grad():
+        z_eval = d.norm(x)
+    d.train()
+    with torch.no_grad():
+        z_train = d.norm(x)
+    assert float((z_eval - z_train).abs().max()) < 0.5  # before: every eval reading within 1e-2 of BatchNorm's bias
+
+
+def test_batchnorm_trains_exactly_as_torchs_batchnorm():
+    # The first batch only sets the running statistics: training outputs (batch statistics) are BatchNorm1d's.
+    torch.manual_seed(1)
+    d = Logistic({"embedding_norm": "batchnorm"}, in_shape=(1, 3, 4), learnable_encoder=True).train()
+    ref = nn.BatchNorm1d(12).train()
+    for _ in range(3):
+        x = torch.randn(50, 12) * 1e-3
+        assert torch.equal(d.norm(x), ref(x))
+    assert int(d.norm.num_batches_tracked) == 3 and d.norm.momentum == ref.momentum
 
 
 def test_standardize_uses_training_statistics():

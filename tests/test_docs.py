@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from optoenc import plugins
-from optoenc.plugins import docs
+from optoenc.cli import settings_page as docs
 from optoenc.plugins.hookspecs import HOOKS, hookimpl
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -36,7 +36,7 @@ def test_settings_reference_is_up_to_date():
     current, generated = _read("settings.md"), docs.generate()
     if current != generated:
         diff = "\n".join(list(difflib.unified_diff(current.splitlines(), generated.splitlines(), "docs/settings.md", "generated", lineterm="", n=1))[:30])
-        pytest.fail(f"docs/settings.md is stale: run `python -m optoenc.plugins.docs` and commit the result.\n{diff}")
+        pytest.fail(f"docs/settings.md is stale: run `python -m optoenc.cli.settings_page` and commit the result.\n{diff}")
 
 
 @pytest.mark.parametrize("hook", list(HOOKS))
@@ -54,7 +54,7 @@ def _builtin_names() -> list[tuple[str, str]]:
 def test_every_builtin_is_in_the_settings_reference():
     text = _read("settings.md")
     missing = [f"{k} {n}" for k, n in _builtin_names() if f"### {k} `{n}`" not in text]
-    assert not missing, f"built-ins missing from docs/settings.md: {missing}; run `python -m optoenc.plugins.docs`"
+    assert not missing, f"built-ins missing from docs/settings.md: {missing}; run `python -m optoenc.cli.settings_page`"
 
 
 def test_reference_documents_builtins_only():
@@ -76,7 +76,7 @@ def test_docs_main_writes_and_checks(tmp_path, capsys):
     assert docs.main(["--output", str(out), "--check"]) == 0
     out.write_text("# old\n", encoding="utf-8")
     assert docs.main(["--output", str(out), "--check"]) == 1
-    assert "run `python -m optoenc.plugins.docs`" in capsys.readouterr().err
+    assert "run `python -m optoenc.cli.settings_page`" in capsys.readouterr().err
     assert [p.name for p in tmp_path.iterdir()] == ["settings.md"]  # no temporary files left
 
 

@@ -39,9 +39,9 @@ def test_learned_slm_run_changes_the_mask_and_exports_the_panel_image(tmp_path, 
     # the trained pattern differs from the initial (seeded) one
     from optoenc.config import compose
     from optoenc.encoders.slm import panel_image
-    from optoenc.config import build_encoder
+    from optoenc.config import encoder_from_run
 
-    initial = panel_image(build_encoder(compose([], ["fidelity.preset=fast"], {"encoder": "learned_slm"})))
+    initial = panel_image(encoder_from_run(compose([], ["fidelity.preset=fast"], {"encoder": "learned_slm"})))
     assert np.abs(img.astype(int) - initial.astype(int)).max() > 0
     # 1122 active sub-pixels: everything outside the cropped area stays opaque
     assert np.count_nonzero(initial) <= 1122

@@ -122,7 +122,7 @@ def test_the_noise_drawn_ahead_is_the_reseeded_default_generators():
     from optoenc.training.epoch_loop import _noise_ahead
 
     x = torch.rand(5, 1, 6, 8)
-    from optoenc.training.module import train_batch_seed
+    from optoenc.training.seeding import train_batch_seed
 
     seeds = [train_batch_seed(1000, 3, b) for b in range(3)]
     ahead = list(_noise_ahead(seeds, [2, 2, 1], x))
@@ -164,7 +164,7 @@ def test_the_noise_level_computed_once_is_the_per_batch_one_bit_for_bit(shape):
     # The epoch loop computes each example's noise level once for the whole split and reuses it every epoch;
     # the per-batch loop computes it batch by batch. Each example's variance is its own reduction, so the
     # numbers must be identical, and so the noisy embeddings drawn with the same seed.
-    from optoenc.encoders.imaging import add_noise, snr_sigma
+    from optoenc.encoders.noise import add_noise, snr_sigma
 
     g = torch.Generator().manual_seed(1)
     x = torch.rand(1000, *shape, generator=g) ** 3

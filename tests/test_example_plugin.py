@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from optoenc import plugins
-from optoenc.plugins import listing
+from optoenc.cli import catalogue as listing
 
 PLUGIN_DIR = Path(__file__).resolve().parents[1] / "plugins" / "optoenc-example"
 

@@ -35,13 +35,26 @@ def test_warm_start_example_reaches_the_first_step(tmp_path, monkeypatch):
     assert "first training step after" in proc.stdout
 
 
-def test_every_paper_sweep_spec_composes_and_names_its_paper_figures(tmp_path):
-    """Each shipped spec expands to valid runs (a bad key would fail the sweep only when its cell starts)."""
+def test_every_paper_sweep_spec_composes_and_names_its_paper_figures(tmp_path, monkeypatch):
+    """Each shipped spec expands to valid runs (a bad key would fail the sweep only when its cell starts). The
+    whitening specs use the experiments plugin's decoders: registered from its source, as installing it would."""
     import pytest
 
-    from optoenc import sweep
+    from optoenc import plugins, sweep
     from optoenc.errors import ConfigError
 
+    monkeypatch.syspath_prepend(str(EXAMPLES.parent / "plugins" / "optoenc-experiments" / "src"))
+    from optoenc_experiments import plugin
+
+    plugins.reset()
+    assert plugins.register_plugin(plugin, name="experiments").ok
+    try:
+        _every_spec(tmp_path, sweep, ConfigError, pytest)
+    finally:
+        plugins.reset()
+
+
+def _every_spec(tmp_path, sweep, ConfigError, pytest):
     specs = sorted((EXAMPLES / "paper").glob("*.yaml"))
     assert len(specs) >= 6
     for path in specs:

@@ -14,7 +14,7 @@ import torch
 
 from optoenc import hardware
 from optoenc.config import compose
-from optoenc.fidelity.knobs import FidelityConfig
+from optoenc.encoders.fidelity import FidelityConfig
 from optoenc.sweep.collect import precision
 
 AVX2 = frozenset({"fma", "avx", "avx2"})

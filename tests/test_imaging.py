@@ -9,6 +9,8 @@ import torch
 import torch.nn.functional as F
 
 from optoenc.encoders import imaging as im
+from optoenc.encoders import noise
+from optoenc.encoders.operator import apply_operator, scene_operator
 
 DT = torch.float64
 
@@ -56,7 +58,7 @@ def test_operator_equals_fine_grid_pipeline(grid, psf_shape, scene, emb, height)
     py, px = im.placement_matrices(scene, grid, height)
     ry = im.correlation_tensor(im.box_matrix(grid[0], emb[0]), py, psf_shape[0])
     rx = im.correlation_tensor(im.box_matrix(grid[1], emb[1]), px, psf_shape[1])
-    out = im.apply_operator(im.scene_operator(psf, ry, rx), x)
+    out = apply_operator(scene_operator(psf, ry, rx), x)
     # Two exact float64 evaluations of the same linear map: rounding only (~1e-14 of values ~50).
     torch.testing.assert_close(out, ref, rtol=1e-11, atol=1e-11)
 
@@ -75,7 +77,7 @@ def test_operator_gradient_with_respect_to_the_psf_is_the_fine_grid_pipelines(ch
     py, px = im.placement_matrices(scene, grid, height)
     ry = im.correlation_tensor(im.box_matrix(grid[0], emb[0]), py, grid[0])
     rx = im.correlation_tensor(im.box_matrix(grid[1], emb[1]), px, grid[1])
-    (g_op,) = torch.autograd.grad((im.apply_operator(im.scene_operator(psf, ry, rx), x) * w).sum(), psf)
+    (g_op,) = torch.autograd.grad((apply_operator(scene_operator(psf, ry, rx), x) * w).sum(), psf)
     ref = im.integrate(im.fft_convolve(im.place(x, grid, height), psf), emb)
     (g_ref,) = torch.autograd.grad((ref * w).sum(), psf)
     torch.testing.assert_close(g_op, g_ref, rtol=1e-10, atol=1e-12)
@@ -127,66 +129,53 @@ def test_object_larger_than_the_field_of_view_is_cropped_with_a_warning():
 def test_noise_hits_the_target_snr_and_is_zero_mean(snr_db):
     torch.manual_seed(0)
     signal = torch.rand(64, 1, 24, 32, dtype=DT) + 0.5
-    noisy = im.add_noise(signal, snr_db)
-    noise = noisy - signal
-    measured = 10 * torch.log10(signal.flatten(1).var(1, unbiased=False) / noise.flatten(1).var(1, unbiased=False))
+    noisy = noise.add_noise(signal, snr_db)
+    drawn = noisy - signal
+    measured = 10 * torch.log10(signal.flatten(1).var(1, unbiased=False) / drawn.flatten(1).var(1, unbiased=False))
     # 768 samples per example: the variance estimate has ~5 % relative spread, ~0.2 dB; 64 examples averaged.
     assert abs(measured.mean().item() - snr_db) < 0.1
     # zero mean: |mean| below 4 standard errors of the mean of 64*768 samples.
-    sigma = noise.std().item()
-    assert abs(noise.mean().item()) < 4 * sigma / (64 * 768) ** 0.5
+    sigma = drawn.std().item()
+    assert abs(drawn.mean().item()) < 4 * sigma / (64 * 768) ** 0.5
 
 
 def test_noise_extremes_are_finite():
     black = torch.zeros(3, 1, 4, 4)
     for model in ("gaussian", "poisson"):
-        out = im.add_noise(black, 40.0, model)
+        out = noise.add_noise(black, 40.0, model)
         assert torch.isfinite(out).all() and (out == 0).all()  # zero variance: zero noise
     x = torch.rand(3, 1, 4, 4)
-    assert torch.equal(im.add_noise(x, None), x)
-    assert torch.equal(im.add_noise(x, 40.0, "none"), x)
-    assert torch.isfinite(im.add_noise(x, 1000.0)).all()
+    assert torch.equal(noise.add_noise(x, None), x)
+    assert torch.equal(noise.add_noise(x, 40.0, "none"), x)
+    assert torch.isfinite(noise.add_noise(x, 1000.0)).all()
 
 
 def test_noise_is_differentiable_and_poisson_is_straight_through():
     x = torch.rand(2, 1, 4, 4, requires_grad=True)
-    im.add_noise(x, 10.0).sum().backward()
+    noise.add_noise(x, 10.0).sum().backward()
     torch.testing.assert_close(x.grad, torch.ones_like(x))
     x.grad = None
-    im.add_noise(x, None, "poisson", photons=100).sum().backward()
+    noise.add_noise(x, None, "poisson", photons=100).sum().backward()
     torch.testing.assert_close(x.grad, torch.ones_like(x))
 
 
-def test_noise_level_gradient_is_the_exact_derivative():
-    # sigma(signal) = std over the example's pixels x 10^(-snr/20): with level_gradient the backward pass is the
-    # derivative of signal + sigma(signal) * noise for fixed draws (gradcheck, float64: its default tolerances
-    # hold for a smooth function of 16 inputs); without it, sigma is a constant there and the gradient the
-    # identity, which gradcheck refuses at 10 dB (the level's share of the derivative is 0.3 x the draws).
-    x = (torch.rand(2, 1, 4, 4, dtype=DT) + 0.5).requires_grad_()
+def test_noise_level_is_a_constant_in_the_backward_pass():
+    # sigma(signal) = std over the example's pixels x 10^(-snr/20) scales fixed draws; the backward pass treats it
+    # as a constant: the gradient of the noisy reading is exactly the identity (0 tolerance: no arithmetic on it),
+    # also for an all-black example (zero variance, where sqrt's derivative is infinite).
+    x = torch.stack([torch.zeros(1, 4, 4, dtype=DT), torch.rand(1, 4, 4, dtype=DT) + 0.5]).requires_grad_()
     n = torch.randn(x.shape, generator=torch.Generator().manual_seed(3), dtype=DT)
-    assert torch.autograd.gradcheck(lambda v: im.add_noise(v, 10.0, noise=n, level_gradient=True), (x,))
-    assert not torch.autograd.gradcheck(lambda v: im.add_noise(v, 10.0, noise=n), (x,), raise_exception=False)
-    # the values are the same either way, to the bit
-    assert torch.equal(im.add_noise(x, 10.0, noise=n, level_gradient=True), im.add_noise(x, 10.0, noise=n))
-
-
-def test_noise_level_gradient_is_finite_at_zero_light():
-    # a constant (all-black) example has zero variance, where sqrt's derivative is infinite: its sigma's gradient
-    # must be 0 (the reading's gradient the identity), never NaN; the lit example beside it keeps its own.
-    x = torch.stack([torch.zeros(1, 4, 4, dtype=DT), torch.rand(1, 4, 4, dtype=DT)]).requires_grad_()
-    out = im.add_noise(x, 40.0, noise=torch.randn(x.shape, dtype=DT), level_gradient=True)
+    out = noise.add_noise(x, 10.0, noise=n)
     out.sum().backward()
-    assert torch.equal(out[0], x[0].detach())
-    assert torch.isfinite(x.grad).all()
-    torch.testing.assert_close(x.grad[0], torch.ones(1, 4, 4, dtype=DT), rtol=0, atol=0)
-    assert not torch.allclose(x.grad[1], torch.ones(1, 4, 4, dtype=DT))
+    assert torch.equal(out[0], x[0].detach()) and not torch.equal(out[1], x[1].detach())
+    torch.testing.assert_close(x.grad, torch.ones_like(x), rtol=0, atol=0)
 
 
 def test_quantize_rounds_to_levels():
     x = torch.tensor([[0.0, 0.26, 0.5, 1.0]])
-    q = im.quantize(x, 2, full_scale=1.0)  # levels 0, 1/3, 2/3, 1
+    q = noise.quantize(x, 2, full_scale=1.0)  # levels 0, 1/3, 2/3, 1
     torch.testing.assert_close(q, torch.tensor([[0.0, 1 / 3, 2 / 3, 1.0]]))
-    assert torch.isfinite(im.quantize(torch.zeros(1, 4), 8)).all()
+    assert torch.isfinite(noise.quantize(torch.zeros(1, 4), 8)).all()
 
 
 def test_zero_energy_psf_is_a_clear_error():
@@ -213,7 +202,7 @@ def _subcell_operator(psf, x, grid, emb, height, s):
     py, px = im.placement_matrices(tuple(x.shape[-2:]), (H * s, W * s), height * s)
     ry = im.correlation_tensor(im.box_matrix(H * s, a), py, H, sub=s)
     rx = im.correlation_tensor(im.box_matrix(W * s, b), px, W, sub=s)
-    return im.apply_operator(im.scene_operator(psf, ry, rx), x)
+    return apply_operator(scene_operator(psf, ry, rx), x)
 
 
 @pytest.mark.parametrize("s", [3, 5])
@@ -265,5 +254,5 @@ def test_scene_operator_is_the_triple_contraction_in_either_order(a, h, Hp, b, w
     ry, rx = torch.rand(a, h, Hp, generator=g, dtype=torch.float64), torch.rand(b, w, Wp, generator=g, dtype=torch.float64)
     psf = torch.rand(2, Hp, Wp, generator=g, dtype=torch.float64, requires_grad=True)
     ref = torch.einsum("phk,ckl,qwl->cpqhw", ry, psf, rx)
-    torch.testing.assert_close(im.scene_operator(psf, ry, rx), ref, rtol=1e-12, atol=0)
-    assert torch.autograd.gradcheck(lambda p: im.scene_operator(p, ry, rx), (psf,))
+    torch.testing.assert_close(scene_operator(psf, ry, rx), ref, rtol=1e-12, atol=0)
+    assert torch.autograd.gradcheck(lambda p: scene_operator(p, ry, rx), (psf,))

@@ -9,7 +9,7 @@ import pytest
 from optoenc.encoders.coded_aperture import CodedAperture
 from optoenc.encoders.slm import FixedSLM
 from optoenc.errors import ConfigError
-from optoenc.fidelity.knobs import FIDELITY_PRESETS, FidelityConfig, Knobs
+from optoenc.encoders.fidelity import FIDELITY_PRESETS, FidelityConfig, Knobs
 
 SMALL_SENSOR = {"embedding": (6, 8)}
 

@@ -52,39 +52,18 @@ def test_correlation_tensor_holds_exact_zeros_not_rounding_noise(sampling):
 
 @pytest.mark.filterwarnings("ignore:optics sampling")  # a 48 x 64 grid aliases the source; the same in both
 def test_large_fields_propagate_one_wavelength_at_a_time_with_the_same_psf(monkeypatch):
-    from optoenc.bench import pipeline
+    from optoenc.bench import settings as bench_settings
     from optoenc.encoders import mask as mask_mod
 
     calls = []
     real = mask_mod.intensity_psf
     monkeypatch.setattr(mask_mod, "intensity_psf", lambda m, wl, *a, **k: calls.append(len(wl)) or real(m, wl, *a, **k))
-    s = pipeline.Setting("w", "sweep", (48, 64), "float64", "auto", oversample=3)
-    batched = pipeline.build_encoder("coded_aperture", s, (6, 8)).psf()
+    s = bench_settings.Setting("w", "sweep", (48, 64), "float64", "auto", oversample=3)
+    batched = bench_settings.build_encoder("coded_aperture", s, (6, 8)).psf()
     assert calls == [3]  # a small field: all wavelengths in one FFT batch
     calls.clear()
     monkeypatch.setattr(mask_mod, "AUTO_CHUNK_SAMPLES", 0)  # every field is "large"
-    chunked = pipeline.build_encoder("coded_aperture", s, (6, 8)).psf()
+    chunked = bench_settings.build_encoder("coded_aperture", s, (6, 8)).psf()
     assert calls == [1, 1, 1]
     # the same propagation per wavelength (its own auto padding): float rounding apart
     torch.testing.assert_close(chunked, batched, rtol=1e-12, atol=0)
-
-
-
-def test_bench_hands_freed_heap_back_between_units(monkeypatch):
-    # glibc keeps freed blocks below its mmap threshold; measured on the published paper pipeline's lens
-    # units: 4.4 GB resident after the unit, 0.6 GB after malloc_trim(0). Whether a given test allocation
-    # lands in the heap depends on the process's history, so the call itself is checked here.
-    from optoenc.bench import pipeline
-
-    calls = []
-
-    class FakeLibc:
-        def malloc_trim(self, pad):
-            calls.append(pad)
-            return 1
-
-    monkeypatch.setattr(pipeline, "_LIBC", FakeLibc())
-    pipeline._free()
-    assert calls == [0]
-    monkeypatch.setattr(pipeline, "_LIBC", False)  # no glibc: nothing to call, no error
-    assert pipeline.trim_heap() is False

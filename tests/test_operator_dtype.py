@@ -7,7 +7,7 @@ import torch
 
 from optoenc.encoders.slm import FixedSLM, LearnedSLM
 from optoenc.errors import ConfigError
-from optoenc.fidelity.knobs import Knobs
+from optoenc.encoders.fidelity import Knobs
 
 # Small grids alias the spherical wave (a warning); the rounding studied here does not depend on it.
 # bfloat16 is asked for explicitly here: on a CPU that emulates it, it warns (tests/test_hardware.py checks that).
@@ -35,7 +35,7 @@ def test_bad_operator_dtype_is_one_clear_error():
 
 def test_bfloat16_embedding_is_within_its_rounding_and_below_the_sensor_noise():
     ref, fast = _pair(FixedSLM)
-    assert fast.operator((28, 28)).dtype == torch.bfloat16 and ref.operator((28, 28)).dtype == torch.float32
+    assert fast.operator((28, 28)).tensor().dtype == torch.bfloat16 and ref.operator((28, 28)).tensor().dtype == torch.float32
     x = torch.rand(32, 1, 28, 28)
     a, b = ref.measure(x), fast.measure(x)
     assert b.dtype == torch.float32  # the embedding keeps the scene's dtype

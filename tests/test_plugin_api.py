@@ -20,7 +20,7 @@ def test_public_names_are_exported():
     from optoenc.datasets.base import Dataset, Splits
     from optoenc.decoders import DecoderConfig
     from optoenc.encoders.mask import MaskEncoder
-    from optoenc.fidelity import Knobs
+    from optoenc.encoders.fidelity import Knobs
 
     assert optoenc.DecoderConfig is DecoderConfig and optoenc.MaskEncoder is MaskEncoder
     assert optoenc.Dataset is Dataset and optoenc.Splits is Splits and optoenc.Knobs is Knobs

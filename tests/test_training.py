@@ -163,45 +163,6 @@ def test_epoch_training_loss_is_the_batch_weighted_mean_of_the_step_losses(tmp_p
     assert 0 < acc < 1 and acc * 450 == pytest.approx(round(acc * 450), abs=1e-3)  # a count of right answers
 
 
-class _Rates(L.Callback):
-    """Each epoch's learning rates, per optimiser group, as the epoch starts."""
-
-    def __init__(self):
-        self.rates = []
-
-    def on_train_epoch_start(self, trainer, pl_module):
-        self.rates.append([g["lr"] for g in trainer.optimizers[0].param_groups])
-
-
-@pytest.mark.filterwarnings("ignore")  # the small grid's sampling warning; Lightning's few-batches notice
-def test_cosine_encoder_schedule_anneals_the_mask_only_and_resumes(tmp_path, quick):
-    """trainer.encoder_lr_schedule=cosine: the encoder's rate at epoch e is encoder_lr (1 + cos(pi e / E)) / 2,
-    the decoder's stays lr (the paper's constant Adam); a run cut after its first epoch resumes with the
-    scheduler where it was, to the same metrics as the uninterrupted run (per-batch seeds: bit for bit)."""
-    import math
-
-    run = compose(overrides=quick + ["trainer.max_epochs=4", "trainer.encoder_lr_schedule=cosine", "sensor.embedding=[3,4]",
-                                     "fidelity.grid=[48,64]", "trainer.limit_train_batches=1"],
-                  names={"encoder": "learned_slm", "decoder": "logistic"})
-    seen = _Rates()
-    whole = fit(run, tmp_path / "whole", callbacks=[seen])
-    want = [0.01 * (1 + math.cos(math.pi * e / 4)) / 2 for e in range(4)]
-    assert [r[0] for r in seen.rates] == pytest.approx([1e-3] * 4, rel=1e-12)  # the decoder's
-    assert [r[1] for r in seen.rates] == pytest.approx(want, rel=1e-12)  # the mask's
-    with pytest.raises(RuntimeError, match="simulated crash"):
-        fit(run, tmp_path / "cut", callbacks=[_Crash()])
-    after = _Rates()
-    resumed = fit(run, tmp_path / "cut", resume=True, callbacks=[after])
-    assert [r[1] for r in after.rates] == pytest.approx(want[1:], rel=1e-12)
-    assert resumed["test_acc"] == whole["test_acc"]
-    constant = compose(overrides=quick + ["trainer.max_epochs=2", "sensor.embedding=[3,4]", "fidelity.grid=[48,64]",
-                                          "trainer.limit_train_batches=1"],
-                       names={"encoder": "learned_slm", "decoder": "logistic"})
-    flat = _Rates()
-    fit(constant, tmp_path / "constant", callbacks=[flat])
-    assert [r[1] for r in flat.rates] == [0.01, 0.01]
-
-
 class _Range(L.Callback):
     """The projected amplitudes' range after every training step."""
 

@@ -58,7 +58,7 @@ def factors(cell: Path):
     H, W = built.canvas.shape if built.canvas is not None else (28, 28)
     height = built.canvas.height if built.canvas is not None else None
     psf = enc.psf().detach().to(enc.operator_dtype)
-    dense = enc._geometry_factors((H, W), enc.object_height_px(height), psf.device, dense=True)
+    dense = enc._operators.geometry_factors(enc, (H, W), enc.object_height_px(height), psf.device, dense=True)
     return psf, dense, W
 
 

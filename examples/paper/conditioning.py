@@ -18,7 +18,9 @@ number.
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
 import torch
 
@@ -35,9 +37,13 @@ def main(argv=None) -> None:
     args = ap.parse_intermixed_args(argv)
 
     from optoenc.config import compose
-    from optoenc.encoders.imaging import add_noise
+    from optoenc.encoders.noise import add_noise
     from optoenc.training.run import build
-    from optoenc.decoders import Whiten
+    try:  # the experiments plugin's whitening (pip install -e plugins/optoenc-experiments), or its source here
+        from optoenc_experiments.whiten import Whiten
+    except ImportError:
+        sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "plugins" / "optoenc-experiments" / "src"))
+        from optoenc_experiments.whiten import Whiten
 
     torch.set_num_threads(args.threads)
     a, b = args.embedding.split("x")

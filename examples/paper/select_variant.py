@@ -37,7 +37,6 @@ import yaml
 KNOBS = (
     "trainer.lr", "trainer.encoder_lr", "trainer.encoder_lr_schedule", "trainer.weight_decay",
     "decoder.embedding_norm", "decoder.dropout", "encoder.parameterization", "encoder.pattern_range",
-    "sensor.noise_level_gradient",
 )
 #: Sections (or keys) that must equal the table cell's.
 PROTOCOL = ("seed", "encoder.", "decoder.", "dataset.", "augment", "scene.", "sensor.", "trainer.max_epochs",

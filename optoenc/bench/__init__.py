@@ -1,5 +1,7 @@
 """Benchmarks: speed and accuracy of the simulation settings, side by side (``optoenc bench``).
 
+* :mod:`optoenc.bench.settings`: the shared settings (what is measured, an
+  encoder at a setting, its embeddings and their error);
 * :mod:`optoenc.bench.pipeline`: the measurement of every preset and
   single-knob sweep point against the truth, beside the paper's pipeline
   (:func:`run`), and the cold encoding of all of MNIST (:func:`encode_all`);
@@ -13,16 +15,19 @@
 * :mod:`optoenc.bench.speed`: the learned SLM's step against the published
   paper step, interleaved, 1 and 2 threads (``optoenc bench speed``);
 * :mod:`optoenc.bench.report`: tables, CSV, the Pareto plot, outcome checks;
-* :func:`auto_fidelity` (from :mod:`optoenc.fidelity.choose`, re-exported
-  here): the cheapest measured setting meeting an error tolerance.
+* :mod:`optoenc.bench.choose`: the cheapest measured setting meeting an
+  error tolerance (:func:`auto_fidelity`);
+* :mod:`optoenc.bench.auto`: ``fidelity.preset=auto`` for a run: measured
+  once per encoder configuration, the decision cached.
 
 The optics micro-benchmark (batched vs looped wavelengths) is
 :mod:`optoenc.bench.optics` (``optoenc bench optics``).
 """
 
-from ..fidelity.choose import AutoChoice, auto_fidelity, auto_select, choose
-from .pipeline import ENCODERS, PAPER_GRID, PRESETS, TRUTH_GRID, encode_all, paper_forward, plan, run
+from .choose import AutoChoice, auto_fidelity, auto_select, choose
+from .pipeline import encode_all, paper_forward, plan, run
 from .report import format_outcomes, format_sweep, format_table, outcomes, read_csv, save_pareto, write_csv
+from .settings import ENCODERS, PAPER_GRID, PRESETS, TRUTH_GRID
 
 __all__ = [
     "ENCODERS",

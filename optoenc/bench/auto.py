@@ -7,7 +7,7 @@ minute and several GB for a mask encoder) and caches the decision on disk,
 keyed by everything that affects it. Later runs read the decision.
 
 The decision is stored and returned as explicit knobs (every knob of
-:class:`optoenc.fidelity.knobs.Knobs` set, ``psf_oversample`` included, after the
+:class:`optoenc.encoders.fidelity.Knobs` set, ``psf_oversample`` included, after the
 encoder's own ``fidelity_presets``), so a run uses exactly the setting that
 was measured, whatever the preset tables say later.
 """
@@ -19,11 +19,11 @@ import json
 from typing import Any, Callable
 
 from .. import __version__
+from ..encoders.fidelity import FidelityConfig
 from ..errors import ConfigError
 from ..settings import to_dict
 from ..training.cache import cache_dir
 from ..training.rundir import write_json
-from .knobs import FidelityConfig
 
 __all__ = ["resolve", "decision_key"]
 
@@ -57,7 +57,7 @@ def resolve(run, root: str | None = None, measure: Callable[..., Any] | None = N
         run: a :class:`optoenc.config.RunConfig` with ``fidelity.preset == "auto"``.
         root: cache folder (default :func:`optoenc.training.cache.cache_dir`'s parent).
         measure: ``auto_select``-like callable (for tests); default
-            :func:`optoenc.fidelity.choose.auto_select`.
+            :func:`optoenc.bench.choose.auto_select`.
 
     Returns:
         ``(fidelity, info)``: explicit knobs, and the measured error and cost.

@@ -24,8 +24,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 
+from ..encoders.fidelity import FIDELITY_PRESETS, FidelityConfig
 from ..errors import ConfigError
-from .knobs import FIDELITY_PRESETS, FidelityConfig
 
 __all__ = ["AutoChoice", "candidates", "choose", "auto_select", "auto_fidelity"]
 
@@ -107,11 +107,11 @@ def auto_select(encoder_name: str, tolerance: float = 0.01, measurements=None, *
                 **run_kwargs) -> AutoChoice:
     """Like :func:`auto_fidelity`, returning the full :class:`AutoChoice` (measured error and cost)."""
     if measurements is None:
-        from ..bench.pipeline import run
+        from .pipeline import run
 
         rows = run([encoder_name], paper=False, **run_kwargs)
     elif isinstance(measurements, (str, Path)):
-        from ..bench.report import read_csv
+        from .report import read_csv
 
         rows = read_csv(measurements)
     else:

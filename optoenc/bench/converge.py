@@ -27,7 +27,8 @@ from typing import Callable, Optional, Sequence
 import torch
 
 from ..training.rundir import atomic_write_bytes
-from .pipeline import DIGITS, EMBEDDING, ENCODERS, _data, _free, embed, relative_error
+from .pipeline import release_memory, scenes
+from .settings import DIGITS, EMBEDDING, ENCODERS, embed, relative_error
 from .truth import SENSOR_GRID, _refined, richardson, truth
 
 __all__ = ["LEVELS", "study", "format_table", "write_csv", "FIELDS"]
@@ -41,14 +42,14 @@ FIELDS = ("encoder", "level", "grid", "pitch_um", "error_vs_previous", "error_vs
 def study(encoders: Sequence[str] = ENCODERS, levels=LEVELS, digits: int = DIGITS, embedding=EMBEDDING,
           setups: Optional[dict] = None, progress: Optional[Callable[[int, int, str], None]] = None) -> list[dict]:
     """One row per encoder and level, then a ``limit`` row (Richardson) and a ``truth`` row per encoder."""
-    data = _data(digits, 1, 1)
+    data = scenes(digits, 1, 1)
     rows: list[dict] = []
     total, done = len(encoders) * (len(levels) + 1), 0
     for name in encoders:
         setup = (setups or {}).get(name)
         if progress is not None:
             progress(done, total, f"{name} truth")
-        _free()
+        release_memory()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             t = truth(name, data.digits, tuple(embedding), setup, tuple(levels[-1]))
@@ -58,7 +59,7 @@ def study(encoders: Sequence[str] = ENCODERS, levels=LEVELS, digits: int = DIGIT
         for g in levels:
             if progress is not None:
                 progress(done, total, f"{name} {g[0]}x{g[1]}")
-            _free()
+            release_memory()
             t0 = time.perf_counter()
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")

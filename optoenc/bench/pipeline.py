@@ -24,7 +24,7 @@ What is measured (``optoenc bench``), for each encoder:
 * a sweep of each knob alone from the ``default`` preset: ``grid``,
   ``padding`` (mask encoders), ``dtype``, ``psf_oversample`` and
   ``wavelengths`` (mask encoders: one wavelength, 550 nm, instead of three;
-  not a fidelity knob, so never chosen by :mod:`optoenc.fidelity.choose`).
+  not a fidelity knob, so never chosen by :mod:`optoenc.bench.choose`).
 
 Per setting: the relative L2 error ``||E - E_truth|| / ||E_truth||`` of the
 noise-free embeddings of the same test digits (learned encoders at their
@@ -42,8 +42,6 @@ renders them. Nothing is printed here.
 
 from __future__ import annotations
 
-import ctypes
-import dataclasses
 import gc
 import hashlib
 import io
@@ -60,190 +58,39 @@ import torch.nn.functional as F
 
 from .. import devices
 from ..errors import ConfigError
-from ..settings import to_dict
-from ..fidelity.knobs import FIDELITY_PRESETS, FidelityConfig
-from ..training.loaders import encode
 from ..optics import clear_cache, sampling_report
+from ..settings import to_dict
+from ..training.loaders import encode
 from ..training.rundir import atomic_write_bytes
+from .settings import (
+    BATCH,
+    DIGITS,
+    EMBEDDING,
+    ENCODE_COUNT,
+    ENCODERS,
+    MONO_WAVELENGTH,
+    PAPER_GRID,
+    PAPER_PADDING,
+    PRESETS,
+    TRUTH_GRID,
+    Setting,
+    build_encoder,
+    embed,
+    encoder_class,
+    is_mask_encoder,
+    paper_grid_setting,
+    paper_setting,
+    preset_setting,
+    relative_error,
+    sweep_settings,
+    truth_setting,
+)
+from .truth import Truth, truth
 
-__all__ = [
-    "ENCODERS",
-    "PRESETS",
-    "PAPER_GRID",
-    "PAPER_PADDING",
-    "TRUTH_GRID",
-    "Setting",
-    "preset_setting",
-    "paper_setting",
-    "paper_grid_setting",
-    "sweep_settings",
-    "plan",
-    "build_encoder",
-    "paper_forward",
-    "embed",
-    "relative_error",
-    "sampling",
-    "run",
-    "encode_all",
-    "trim_heap",
-]
+__all__ = ["paper_forward", "train_step", "sampling", "Scenes", "scenes", "release_memory", "plan", "run", "encode_all"]
 
-#: Encoders measured by default (the built-ins).
-ENCODERS = ("lens", "coded_aperture", "diffuser", "fixed_slm", "learned_slm", "phase_mask", "learned_phase_mask")
-#: Presets measured by default.
-PRESETS = tuple(FIDELITY_PRESETS)
-#: The paper's simulation grid (sensor / 8) and its 2x propagation window (0.5 per side).
-PAPER_GRID = (380, 507)
-PAPER_PADDING = "0.5"
-#: The truth's finest grid: the full sensor.
-TRUTH_GRID = tuple(devices.IMX477_RESOLUTION)
 #: Version of the kept truth files (``truth_dir``).
 TRUTH_FORMAT = 1
-#: Sweep points, each knob alone from the ``default`` preset.
-SWEEP_GRIDS = ((96, 128), (192, 256), (288, 384), (380, 507), (576, 768), (768, 1024))
-SWEEP_PADDINGS = ("0", "0.25", "0.5", "1.0")
-SWEEP_DTYPES = ("float32", "float64")
-#: The single wavelength of the one-wavelength sweep point (the G channel).
-MONO_WAVELENGTH = 550e-9
-#: Embedding, training batch and test digits of the benchmark.
-EMBEDDING = (24, 32)
-BATCH = 200
-DIGITS = 256
-ENCODE_COUNT = 10_000
-
-
-def _grid_str(grid) -> str:
-    return "x".join(str(int(n)) for n in grid)
-
-
-@dataclass(frozen=True)
-class Setting:
-    """One simulation setting of one encoder.
-
-    Attributes:
-        label: name in the tables (``"default"``, ``"paper"``, ``"grid=192x256"``).
-        kind: ``"truth"``, ``"paper"`` (as published), ``"paper-grid"``, ``"preset"`` or ``"sweep"``.
-        grid, dtype, padding: the fidelity knobs.
-        preset: the preset name (presets only).
-        knob, value: the swept knob and its value (sweep points only).
-        wavelengths: 3 (the spectral model) or 1 (550 nm only, mask encoders).
-        oversample: ``psf_oversample``.
-        propagation: ``fidelity.propagation`` (None: the preset's own; a preset's setting names it).
-    """
-
-    label: str
-    kind: str
-    grid: tuple[int, int]
-    dtype: str
-    padding: str
-    preset: Optional[str] = None
-    knob: Optional[str] = None
-    value: Optional[str] = None
-    wavelengths: int = 3
-    oversample: int = 1
-    propagation: Optional[str] = None
-
-    @property
-    def method(self) -> str:
-        """Imaging path: ``published`` (the paper's), ``direct`` (paper-grid) or the exact scene ``operator``."""
-        return {"paper": "published", "paper-grid": "direct"}.get(self.kind, "operator")
-
-    def fidelity(self) -> FidelityConfig:
-        """The :class:`FidelityConfig` of this setting (explicit knobs; a preset's name kept)."""
-        return FidelityConfig(
-            preset=self.preset or "default",
-            grid=tuple(self.grid),
-            dtype=self.dtype,
-            padding=str(self.padding),
-            psf_oversample=int(self.oversample),
-            propagation=self.propagation,
-        )
-
-
-def preset_setting(name: str, encoder_name: str | None = None) -> Setting:
-    """The setting of a named fidelity preset (with the encoder's own measured overrides)."""
-    if name not in FIDELITY_PRESETS:
-        raise ConfigError("preset", name, f"one of {', '.join(FIDELITY_PRESETS)}")
-    overrides = getattr(_encoder_class(encoder_name), "fidelity_presets", {}) if encoder_name else {}
-    p = FidelityConfig(preset=name).resolved(overrides)
-    return Setting(
-        name, "preset", tuple(p["grid"]), p["dtype"], p["padding"], preset=name, oversample=int(p.get("psf_oversample") or 1),
-        propagation=p.propagation,
-    )
-
-
-def paper_setting(grid=PAPER_GRID, padding: str = PAPER_PADDING) -> Setting:
-    """The published paper pipeline's setting: its grid, float32, 2x padding (:mod:`optoenc.bench.published`)."""
-    return Setting("paper", "paper", tuple(grid), "float32", str(padding))
-
-
-def paper_grid_setting(grid=PAPER_GRID, padding: str = PAPER_PADDING) -> Setting:
-    """The paper's grid, padding and per-step PSF with optoenc's exact placement and box integration."""
-    return Setting("paper-grid", "paper-grid", tuple(grid), "float32", str(padding))
-
-
-def _is_mask_encoder(cls) -> bool:
-    from ..encoders.mask import MaskEncoder
-
-    return isinstance(cls, type) and issubclass(cls, MaskEncoder)
-
-
-def _encoder_class(name: str):
-    from ..plugins import get_registry
-
-    return get_registry("encoder").get(name)
-
-
-def sweep_settings(encoder_name: str, base: str = "default") -> list[Setting]:
-    """Each knob alone from ``base``: grid, dtype; for mask encoders also padding, wavelengths, PSF oversampling,
-    and propagation (2-D or axis by axis) for those whose mask factors by axis (``MaskEncoder.separable``).
-
-    Every other knob keeps ``base``'s value (``psf_oversample`` included);
-    points equal to ``base`` itself are left out (the preset row stands for them).
-    """
-    b = preset_setting(base, encoder_name)
-    cls = _encoder_class(encoder_name)
-    mask = _is_mask_encoder(cls)
-
-    def point(knob: str, value, **changed) -> Setting:
-        return dataclasses.replace(b, label=f"{knob}={value}", kind="sweep", preset=None, knob=knob, value=str(value),
-                                   **changed)
-
-    out = [point("grid", _grid_str(g), grid=tuple(g)) for g in SWEEP_GRIDS if tuple(g) != b.grid]
-    if mask:
-        out += [point("padding", p, padding=p) for p in SWEEP_PADDINGS if p != str(b.padding)]
-    out += [point("dtype", d, dtype=d) for d in SWEEP_DTYPES if d != b.dtype]
-    if mask:
-        out.append(point("wavelengths", 1, wavelengths=1))
-        other = 3 if b.oversample == 1 else 1
-        out.append(point("psf_oversample", other, oversample=other))
-        if getattr(cls, "separable", False):
-            other = "blas" if b.propagation == "separable" else "separable"
-            out.append(point("propagation", other, propagation=other))
-    return out
-
-
-# ----------------------------------------------------------------------------- encoders
-
-
-def build_encoder(name: str, setting: Setting, embedding=EMBEDDING, setup: Optional[dict] = None):
-    """The encoder ``name`` at ``setting``.
-
-    ``setup`` may hold ``config`` (the encoder's settings), ``scene`` and
-    ``sensor`` (mappings or settings objects) to measure a specific encoder;
-    by default its registry defaults are used.
-    """
-    cls = _encoder_class(name)
-    setup = dict(setup or {})
-    sensor = setup.get("sensor")
-    sensor = dict(to_dict(sensor)) if sensor is not None and not isinstance(sensor, dict) else dict(sensor or {})
-    sensor["embedding"] = tuple(int(e) for e in embedding)
-    enc = cls(setup.get("config"), scene=setup.get("scene"), sensor=sensor, fidelity=setting.fidelity())
-    if setting.wavelengths == 1:
-        if not _is_mask_encoder(cls):
-            raise ConfigError("wavelengths", 1, f"only mask encoders can be reduced to one wavelength, not {name}")
-        enc.set_monochromatic(MONO_WAVELENGTH)
-    return enc
 
 
 def paper_forward(enc, scene: torch.Tensor, recompute_psf: bool = True, noise: bool = True) -> torch.Tensor:
@@ -254,28 +101,6 @@ def paper_forward(enc, scene: torch.Tensor, recompute_psf: bool = True, noise: b
         enc.invalidate_psf()  # the paper recomputed the PSF (BLAS) at every step
     clean = enc.measure(scene, method="direct")
     return enc.add_sensor_noise(clean) if noise else clean
-
-
-@torch.no_grad()
-def embed(enc, images: torch.Tensor, method: str = "operator", chunk: int = 64) -> torch.Tensor:
-    """Noise-free float64 embeddings of ``images`` (eval mode); ``method="published"``: the paper's pipeline."""
-    if method == "published":
-        from .published import published_forward
-
-        was = enc.training
-        enc.eval()
-        try:
-            return torch.cat([published_forward(enc, images[i : i + chunk], noise=False, recompute_psf=False).double()
-                              for i in range(0, len(images), chunk)])
-        finally:
-            enc.train(was)
-    step = max(len(images), 1) if method == "operator" else chunk
-    return encode(enc, images.to(torch.float64), step, method=method).double()
-
-
-def relative_error(e: torch.Tensor, ref: torch.Tensor) -> float:
-    """``||e - ref|| / ||ref||`` over all examples and pixels."""
-    return float((e.double() - ref.double()).norm() / ref.double().norm().clamp_min(1e-300))
 
 
 def _mask_phase_step(enc) -> float:
@@ -303,7 +128,7 @@ def sampling(enc, setting: Setting) -> tuple[bool, str]:
     ``mask-phase`` when a complex mask changes by more than pi between
     neighbouring grid pixels. Encoders without propagation are always ok.
     """
-    if not _is_mask_encoder(type(enc)):
+    if not is_mask_encoder(type(enc)):
         return True, ""
     wl = (MONO_WAVELENGTH,) if setting.wavelengths == 1 else devices.WAVELENGTHS_RGB
     rep = sampling_report(enc.geometry.grid, enc.geometry.spacing, wl, enc.d2, enc.scene_config.distance,
@@ -336,8 +161,8 @@ def _best_time(fn: Callable[[], None], warmup: int, repeats: int, budget_s: floa
     return min(times)
 
 
-def _train_step(enc, images: torch.Tensor, labels: torch.Tensor, method: str, seed: int,
-                num_classes: int = 10) -> Callable[[], None]:
+def train_step(enc, images: torch.Tensor, labels: torch.Tensor, method: str, seed: int,
+               num_classes: int = 10) -> Callable[[], None]:
     """One optimiser step of encoder + FCNN (batch ``images``) on the path ``method`` (a :attr:`Setting.method`)."""
     from ..decoders import FCNN
     from .published import published_forward
@@ -367,17 +192,18 @@ def _train_step(enc, images: torch.Tensor, labels: torch.Tensor, method: str, se
 
 
 @dataclass
-class _Data:
+class Scenes:
+    """The scenes of a measurement: test digits (the error), a training batch with its labels (the step time)
+    and the scenes encoded for a fixed encoder's encode time."""
+
     digits: torch.Tensor
     batch: torch.Tensor
     labels: torch.Tensor
     encode: torch.Tensor
-
-
     num_classes: int = 10
 
 
-def _data(digits: int, batch: int, encode_count: int, splits=None) -> _Data:
+def scenes(digits: int, batch: int, encode_count: int, splits=None) -> Scenes:
     """The scenes measured: ``splits`` (a :class:`optoenc.datasets.Splits`, e.g. a run's dataset) or MNIST's."""
     if splits is None:
         from ..datasets.mnist import MNIST
@@ -386,37 +212,13 @@ def _data(digits: int, batch: int, encode_count: int, splits=None) -> _Data:
     s = splits
     test_x, train_x, train_y = s.test[0], s.train[0], s.train[1]
     pool = torch.cat([test_x, train_x]) if encode_count > len(test_x) else test_x
-    return _Data(test_x[:digits], train_x[:batch], train_y[:batch], pool[:encode_count], int(s.num_classes))
+    return Scenes(test_x[:digits], train_x[:batch], train_y[:batch], pool[:encode_count], int(s.num_classes))
 
 
-def _free() -> None:
+def release_memory() -> None:
+    """Free what one measured unit left behind (garbage, the optics caches) before the next is measured."""
     gc.collect()
     clear_cache()
-    trim_heap()
-
-
-def trim_heap() -> bool:
-    """Hand freed heap memory back to the OS (glibc's ``malloc_trim``; False where there is none).
-
-    glibc keeps freed blocks below its mmap threshold (up to 32 MB) in the
-    process: the published paper pipeline's per-example FFTs (759 x 1013,
-    6 MB each, a batch of 200 with autograd) left ~3.8 GB resident after
-    each paper unit, which every later unit's peak stacked on.
-    """
-    global _LIBC
-    if _LIBC is None:
-        try:
-            _LIBC = ctypes.CDLL("libc.so.6")
-            _LIBC.malloc_trim
-        except (OSError, AttributeError):
-            _LIBC = False
-    if not _LIBC:
-        return False
-    _LIBC.malloc_trim(0)
-    return True
-
-
-_LIBC = None
 
 
 def _row(name: str, cls, s: Setting, method: str) -> dict:
@@ -447,11 +249,9 @@ def _row(name: str, cls, s: Setting, method: str) -> dict:
     }
 
 
-def _truth_row(name: str, s: Setting, data: _Data, embedding, setup: Optional[dict], truth_dir,
+def _truth_row(name: str, s: Setting, data: Scenes, embedding, setup: Optional[dict], truth_dir,
                kernel_check: bool) -> tuple[dict, torch.Tensor]:
-    from .truth import Truth, truth
-
-    cls = _encoder_class(name)
+    cls = encoder_class(name)
     row = _row(name, cls, s, "truth")
     path = None
     if truth_dir is not None:  # resumable: the truth of this encoder, setup, scenes and grid, once
@@ -476,12 +276,12 @@ def _truth_row(name: str, s: Setting, data: _Data, embedding, setup: Optional[di
     return row, t.embeddings
 
 
-def _measure(name: str, s: Setting, data: _Data, ref: Optional[torch.Tensor], embedding, steps: int,
+def _measure(name: str, s: Setting, data: Scenes, ref: Optional[torch.Tensor], embedding, steps: int,
              paper_steps: int, seed: int, setup: Optional[dict] = None) -> tuple[dict, Optional[torch.Tensor]]:
-    cls = _encoder_class(name)
+    cls = encoder_class(name)
     row = _row(name, cls, s, s.method)
     paper = s.kind in ("paper", "paper-grid")
-    _free()
+    release_memory()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # sampling warnings go into the row instead
         t0 = time.perf_counter()
@@ -505,25 +305,23 @@ def _measure(name: str, s: Setting, data: _Data, ref: Optional[torch.Tensor], em
             row["encode_estimated"] = True
         row["error"] = relative_error(e, ref) if ref is not None else None
         row["sampling_ok"], row["sampling"] = sampling(enc, s)
-        step = _train_step(enc, data.batch, data.labels, s.method, seed, data.num_classes)
+        step = train_step(enc, data.batch, data.labels, s.method, seed, data.num_classes)
         if paper:
             row["step_s"] = _best_time(step, warmup=1 if cls.learnable else 0, repeats=paper_steps, budget_s=math.inf)
         else:
             row["step_s"] = _best_time(step, warmup=2, repeats=steps)
     row["cost_s"] = row["step_s"] if cls.learnable else row["encode_s"]
     del enc, step
-    _free()
+    release_memory()
     return row, None
 
 
 def plan(encoders=ENCODERS, presets=PRESETS, *, sweep: bool = True, paper: bool = True,
          truth_grid=TRUTH_GRID, paper_grid=PAPER_GRID, paper_padding: str = PAPER_PADDING) -> list[tuple[str, Setting]]:
     """The ``(encoder, setting)`` units :func:`run` measures, in order (each encoder's truth first)."""
-    from .truth import truth_setting
-
     units = []
     for name in encoders:
-        _encoder_class(name)  # unknown names fail before any work
+        encoder_class(name)  # unknown names fail before any work
         units.append((name, truth_setting(truth_grid)))
         if paper:
             units.append((name, paper_setting(paper_grid, paper_padding)))
@@ -595,7 +393,7 @@ def run(
     """
     units = plan(encoders, presets, sweep=sweep, paper=paper, truth_grid=truth_grid, paper_grid=paper_grid,
                  paper_padding=paper_padding)
-    data = _data(digits, batch, encode_count, splits)
+    data = scenes(digits, batch, encode_count, splits)
     rows: list[dict] = []
     refs: dict[str, torch.Tensor] = {}
     for i, (name, s) in enumerate(units):
@@ -603,9 +401,9 @@ def run(
             progress(i, len(units), f"{name} {s.label}")
         setup = (setups or {}).get(name)
         if s.kind == "truth":
-            _free()
+            release_memory()
             row, refs[name] = _truth_row(name, s, data, embedding, setup, truth_dir, kernel_check)
-            _free()
+            release_memory()
         else:
             row, _ = _measure(name, s, data, refs.get(name), embedding, steps, paper_steps, seed, setup)
         rows.append(row)
@@ -641,10 +439,10 @@ def encode_all(encoder: str = "fixed_slm", preset: str = "default", embedding=EM
     from ..training import cache
     from ..datasets.mnist import MNIST
 
-    cls = _encoder_class(encoder)
+    cls = encoder_class(encoder)
     if cls.learnable:
         raise ConfigError("encoder", encoder, "must be a fixed encoder (learned ones are not precomputed)")
-    _free()
+    release_memory()
     t0 = time.perf_counter()
     ds = MNIST()
     splits = ds.load()

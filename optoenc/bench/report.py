@@ -124,7 +124,7 @@ def outcomes(rows: Iterable[dict], encode_all: Optional[dict] = None, auto: Opti
 
     Args:
         encode_all: :func:`optoenc.bench.pipeline.encode_all`'s result.
-        auto: ``{encoder: AutoChoice or error text}`` from :mod:`optoenc.fidelity.choose`.
+        auto: ``{encoder: AutoChoice or error text}`` from :mod:`optoenc.bench.choose`.
         speed: :func:`optoenc.bench.speed.interleaved`'s result (the step ratio measured interleaved);
             without it the ratio of the rows' best step times is checked.
     """

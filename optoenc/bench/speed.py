@@ -36,17 +36,18 @@ def interleaved(encoder: str = "learned_slm", preset: str = "default", threads=(
         "paper_min", "paper_median", "step_min", "step_median", "ratio_min", "ratio_median",
         "load_before", "load_after"}}}``.
     """
-    from .pipeline import _data, _train_step, build_encoder, paper_setting, preset_setting
+    from .pipeline import scenes, train_step
+    from .settings import build_encoder, paper_setting, preset_setting
 
-    data = _data(1, batch, 1)
+    data = scenes(1, batch, 1)
     out = {"encoder": encoder, "preset": preset, "batch": batch, "repeats": repeats, "threads": {}}
     for n in threads:
         with torch_threads(n), warnings.catch_warnings():
             warnings.simplefilter("ignore")
             fast = build_encoder(encoder, preset_setting(preset, encoder))
             paper = build_encoder(encoder, paper_setting())
-            step = _train_step(fast, data.batch, data.labels, "operator", seed, data.num_classes)
-            pstep = _train_step(paper, data.batch, data.labels, "published", seed, data.num_classes)
+            step = train_step(fast, data.batch, data.labels, "operator", seed, data.num_classes)
+            pstep = train_step(paper, data.batch, data.labels, "published", seed, data.num_classes)
             step()  # warm-up: operator and correlation tensors, allocator
             pstep()
             load0 = _load()

@@ -25,7 +25,7 @@ simulation:
   the full sensor (:mod:`optoenc.bench.converge`).
 
 The embedding of a piecewise-constant scene with a pixel-integrated PSF is
-then the exact linear operator (:func:`optoenc.encoders.imaging.scene_operator`) on
+then the exact linear operator (:func:`optoenc.encoders.operator.scene_operator`) on
 the truth's grid: place, convolve and integrate, with the PSF taken constant
 within each of its (1.55 um) pixels. That last step and the pixel quadrature
 are the truth's only approximations; :func:`truth` measures them by
@@ -55,15 +55,16 @@ import numpy as np
 import torch
 
 from .. import devices
-from ..encoders import imaging
+from ..encoders import imaging, operator
+from .settings import TRUTH_GRID, build_encoder, embed, truth_setting
 
 __all__ = [
-    "RectCells", "rect_cells", "fresnel_psf", "fresnel_vs_exact_1d", "kernel_error", "SENSOR_GRID", "truth_setting",
+    "RectCells", "rect_cells", "fresnel_psf", "fresnel_vs_exact_1d", "kernel_error", "SENSOR_GRID",
     "embed_with_psf", "truth_psf", "richardson", "Truth", "truth",
 ]  # fmt: skip
 
 #: The full sensor grid (IMX477 pixels): the truth's finest grid.
-SENSOR_GRID = tuple(devices.IMX477_RESOLUTION)
+SENSOR_GRID = TRUTH_GRID
 #: Gauss-Legendre nodes per 1.55 um sensor pixel and axis of the pixel-integrated Fresnel intensity
 #: (scaled with the pixel size on coarser grids): ~0.2 um apart, several per period of the finest fringe
 #: (measured on fixed_slm: 4 -> 8 nodes changes the embeddings by 2e-4, 8 -> 16 by 1e-9).
@@ -99,7 +100,7 @@ def rect_cells(enc) -> Optional[RectCells]:
     if isinstance(enc, _SLMBase):
         b = enc.block
         with torch.no_grad():
-            w = enc.weights().detach().double().cpu().numpy()
+            w = enc.displayed_amplitudes().detach().double().cpu().numpy()
         onehot = np.eye(3)[b.colours].T  # (3, rows): ideal colour filters
         return RectCells(_edges(b.rows, K.ST7735R_PITCH[0], K.ST7735R_CELL[0]),
                          _edges(b.cols, K.ST7735R_PITCH[1], K.ST7735R_CELL[1]), onehot[:, :, None] * w[None])
@@ -171,7 +172,7 @@ def embed_with_psf(psf: torch.Tensor, grid_spacing: tuple[float, float], images:
                    embedding: tuple[int, int]) -> torch.Tensor:
     """Noise-free float64 embeddings ``(B, C, a, b)`` of ``images`` for a pixel-integrated PSF ``(C, H, W)``.
 
-    The exact scene operator (:func:`optoenc.encoders.imaging.scene_operator`) on the
+    The exact scene operator (:func:`optoenc.encoders.operator.scene_operator`) on the
     PSF's grid: the scene is a piecewise-constant surface ``height_m`` tall on
     the sensor, centred and inverted, placed with exact areas.
     """
@@ -181,8 +182,8 @@ def embed_with_psf(psf: torch.Tensor, grid_spacing: tuple[float, float], images:
     py, px = imaging.placement_matrices((h, w), (H, W), height_m / dy, pixel_aspect=dy / dx)
     ry = imaging.correlation_tensor(imaging.box_matrix(H, embedding[0]), py, H)
     rx = imaging.correlation_tensor(imaging.box_matrix(W, embedding[1]), px, W)
-    op = imaging.scene_operator(psf.double(), ry, rx)
-    return imaging.apply_operator(op, images.double())
+    op = operator.scene_operator(psf.double(), ry, rx)
+    return operator.apply_operator(op, images.double())
 
 
 def _sensor_spacing(enc, grid) -> tuple[float, float]:
@@ -190,16 +191,7 @@ def _sensor_spacing(enc, grid) -> tuple[float, float]:
     return (h / grid[0], w / grid[1])
 
 
-def truth_setting(grid: tuple[int, int] = SENSOR_GRID):
-    """The refined simulation setting of the truth's other routes: ``grid``, float64, padding ``auto``."""
-    from .pipeline import Setting
-
-    return Setting("truth", "truth", tuple(int(n) for n in grid), "float64", "auto")
-
-
 def _refined(name: str, grid, embedding, setup):
-    from .pipeline import build_encoder
-
     enc = build_encoder(name, truth_setting(grid), embedding, setup)
     if hasattr(enc, "wavelength_chunk"):
         enc.wavelength_chunk = 1  # one wavelength at a time: the full sensor fits in a few GB
@@ -311,8 +303,6 @@ def truth(name: str, images: torch.Tensor, embedding: tuple[int, int], setup: Op
     ``grid / 2`` (others). ``kernel_check``: add the Fresnel-vs-exact term
     (about a minute for the LCD).
     """
-    from .pipeline import embed
-
     t0 = time.perf_counter()
     enc = _refined(name, grid, embedding, setup)
     height = enc.scene_config.object_height * enc.magnification

@@ -1,4 +1,8 @@
-"""`optoenc reconstruct` and `optoenc privacy`: options and command logic (cli.py parses and dispatches)."""
+"""``optoenc reconstruct`` and ``optoenc privacy``: reconstruction from sensor embeddings and privacy measurement.
+
+The library parts are :mod:`optoenc.privacy` (operators, solvers, attacks,
+metrics, tables); this module parses the options, prints and writes files.
+"""
 
 from __future__ import annotations
 
@@ -7,15 +11,17 @@ import io
 import sys
 from pathlib import Path
 
-from ..settings import parse_hw
 from ..errors import ConfigError, DataError
+from ..privacy.settings import ATTACKS, METHODS, ADMMConfig, LearnedConfig, PrivacyConfig, TikhonovConfig
+from ..settings import parse_hw
 from ..training.rundir import atomic_write_bytes, write_json
-from .settings import ATTACKS, METHODS, ADMMConfig, LearnedConfig, PrivacyConfig, TikhonovConfig
+from .args import command, compose, names, split_overrides
 
-__all__ = ["add_parsers", "reconstruct", "privacy"]
+__all__ = ["add_parsers"]
 
 
 def _source_options(p: argparse.ArgumentParser) -> None:
+    """Where the encoder comes from, and the solvers' settings (shared by both commands)."""
     g = p.add_mutually_exclusive_group()
     g.add_argument("--run", action="append", metavar="RUN_DIR", help="run directory of `optoenc fit` (trained or fixed encoder)")
     g.add_argument("--encoder", help="an encoder by name, with --section.key=value settings (e.g. --sensor.embedding=[6,8])")
@@ -26,21 +32,18 @@ def _source_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mu-tv", type=float, help=f"ADMM penalty of u = Psi x (default {ADMMConfig().mu_tv:g})")
     p.add_argument("--mu-nonneg", type=float, help=f"ADMM penalty of w = x (default {ADMMConfig().mu_nonneg:g})")
     p.add_argument("--rcond", type=float, help=f"pseudo-inverse cut-off (default {TikhonovConfig().rcond:g})")
-    p.add_argument("--seed", type=int, default=0, help="noise seed")
-    p.add_argument("--out", metavar="DIR", help="output folder (default: RUN_DIR/reconstruct or RUN_DIR/privacy)")
 
 
 def add_parsers(sub) -> None:
-    """Add the two subcommands to the CLI's subparsers."""
-    r = sub.add_parser("reconstruct", help="reconstruct scenes from sensor embeddings (ADMM, Tikhonov, pseudo-inverse)")
-    _source_options(r)
-    r.add_argument("--image", action="append", default=[], metavar="FILE", help="reconstruct this image (repeatable) instead of test digits")
-    r.add_argument("--count", type=int, default=8, help="test digits (when no --image)")
-    r.add_argument("--scene-shape", metavar="HxW", help="reconstruction grid (default: the dataset's, 28x28)")
-    r.add_argument("--method", default="admm", help=f"comma-separated methods: {', '.join(METHODS)}")
-    r.add_argument("--lam", type=float, help=f"Tikhonov weight, unit-norm operator (default {TikhonovConfig().lam:g})")
-    r.add_argument("--no-noise", action="store_true", help="reconstruct noise-free embeddings")
-    p = sub.add_parser("privacy", help="attack a run's embeddings and measure privacy (table, pictures, privacy-utility plot)")
+    """Add ``privacy`` and ``reconstruct`` to the CLI's subparsers."""
+    p = sub.add_parser(
+        "privacy", help="attack an encoder's embeddings and measure what leaks",
+        description="Attack an encoder's noisy sensor embeddings of test digits and measure what leaks: each "
+        "attacker's reconstructions (PSNR, SSIM), whether a digit classifier can read them (readability) and "
+        "whether they pick the true scene out of a gallery of its class (re-identification top-1). The encoder "
+        "comes from one run directory (--run), every run directory of a folder (--sweep: one table and the "
+        "privacy-utility plots) or a name (--encoder). Attacks that need a camera showing several patterns "
+        "(admm_search, learned_one) are noted and skipped on a single-pattern camera.")
     _source_options(p)
     p.add_argument("--sweep", metavar="DIR", help="a folder of run directories: one table and the privacy-utility plot")
     p.add_argument("--attacks", default=",".join(ATTACKS), help=f"comma-separated attacks: {', '.join(ATTACKS)}")
@@ -50,9 +53,31 @@ def add_parsers(sub) -> None:
                    f"{','.join(str(v) for v in PrivacyConfig().plaintext_n)})")
     p.add_argument("--learned-epochs", type=int, help=f"learned attacker's epochs (default {LearnedConfig().epochs})")
     p.add_argument("--learned-pairs", type=int, help=f"learned attacker's training pairs (default {LearnedConfig().pairs})")
+    p.add_argument("--seed", type=int, help="seed of the sensor noise, the patterns a multi-pattern camera shows, the "
+                   "re-identification galleries, the readability classifier and the attackers' training "
+                   f"(default {PrivacyConfig().seed})")
+    p.add_argument("--out", metavar="DIR", help="folder of the table (privacy.csv, privacy.md) and pictures; default "
+                   "RUN_DIR/privacy with --run, DIR/privacy with --sweep; required with --encoder")
     p.add_argument("--force", action="store_true", help="re-measure runs that already have privacy/privacy.csv")
     p.add_argument("--defence", action="store_true", help="with --sweep: defence.{csv,md}, each run's attacks against "
                    "its baseline (encoder.patterns = 1, privacy.adversary_weight = 0; docs/privacy.md)")
+    command(p, privacy, overrides=True)
+    r = sub.add_parser(
+        "reconstruct", help="reconstruct scenes from sensor embeddings (ADMM and others)",
+        description="Reconstruct scenes (test digits, or your own images with --image) from an encoder's sensor "
+        "embeddings, with sensor noise unless --no-noise, and write the reconstructions as a picture, NumPy "
+        "arrays and reconstruct.json (PSNR and SSIM of each method).")
+    _source_options(r)
+    r.add_argument("--image", action="append", default=[], metavar="FILE", help="reconstruct this image (repeatable) instead of test digits")
+    r.add_argument("--count", type=int, default=8, help="test digits (when no --image)")
+    r.add_argument("--scene-shape", metavar="HxW", help="reconstruction grid (default: the dataset's, 28x28)")
+    r.add_argument("--method", default="admm", help=f"comma-separated methods: {', '.join(METHODS)}")
+    r.add_argument("--lam", type=float, help=f"Tikhonov weight, unit-norm operator (default {TikhonovConfig().lam:g})")
+    r.add_argument("--no-noise", action="store_true", help="reconstruct noise-free embeddings")
+    r.add_argument("--seed", type=int, default=0, help="seed of the sensor noise added to the embeddings (default 0)")
+    r.add_argument("--out", metavar="DIR", help="folder of the picture, arrays and reconstruct.json; default "
+                   "RUN_DIR/reconstruct with --run; required with --encoder")
+    command(r, reconstruct, overrides=True)
 
 
 def _given(**kw):
@@ -63,8 +88,9 @@ def _admm_config(args) -> ADMMConfig:
     return ADMMConfig(**_given(iterations=args.iterations, tau=args.tau, mu_tv=args.mu_tv, mu_nonneg=args.mu_nonneg))
 
 
-def _names(text: str, allowed, key: str) -> list[str]:
-    out = [v.strip() for v in text.split(",") if v.strip()]
+def _choices(text: str, allowed, key: str) -> list[str]:
+    """Comma-separated names, each one of ``allowed`` (at least one), or a ConfigError naming ``key``."""
+    out = names(text)
     for v in out:
         if v not in allowed:
             raise ConfigError(key, v, f"one of {', '.join(allowed)}")
@@ -73,29 +99,24 @@ def _names(text: str, allowed, key: str) -> list[str]:
     return out
 
 
-def _shape(text: str, key: str) -> tuple[int, int]:
-    return parse_hw(key, text)
-
-
 def _encoder(args, extra):
     """``(run config, encoder, summary, default output folder)`` from --run or --encoder."""
-    from ..cli import _compose
-    from ..config import build_encoder
-    from ..cli import _split_overrides
-    from .report import load_run
+    from ..config import encoder_from_run
+    from ..privacy.report import load_run
 
     if args.run:
         if len(args.run) > 1:
             raise ConfigError("--run", args.run, "give one run directory here (several: a --sweep folder)")
-        run, enc, summary = load_run(args.run[0], _split_overrides(extra), args.which)
+        run, enc, summary = load_run(args.run[0], split_overrides(extra), args.which)
         return run, enc, summary, Path(args.run[0])
     if not args.encoder:
         raise ConfigError("--encoder", None, "give --run RUN_DIR or --encoder NAME")
-    run = _compose(args, extra)
-    return run, build_encoder(run).eval(), {}, None
+    run = compose(args, extra)
+    return run, encoder_from_run(run).eval(), {}, None
 
 
 def _load_images(files, shape):
+    import numpy as np
     import torch
     from PIL import Image, UnidentifiedImageError
 
@@ -105,7 +126,7 @@ def _load_images(files, shape):
             img = Image.open(f).convert("L").resize((shape[1], shape[0]), Image.BILINEAR)
         except (OSError, UnidentifiedImageError) as err:
             raise DataError(f"--image {f}: cannot read the image ({str(err).splitlines()[0]})") from None
-        out.append(torch.from_numpy(__import__("numpy").asarray(img, dtype="float64").copy()).reshape(1, *shape) / 255.0)
+        out.append(torch.from_numpy(np.asarray(img, dtype="float64").copy()).reshape(1, *shape) / 255.0)
     return torch.stack(out)
 
 
@@ -117,17 +138,17 @@ def _npy(path: Path, t) -> Path:
     return atomic_write_bytes(path, buf.getvalue())
 
 
-def reconstruct(args, extra) -> int:
+def reconstruct(args: argparse.Namespace, extra) -> int:
     import torch
 
     from ..plugins import get_registry
-    from . import metrics
-    from .admm import admm
-    from .operators import from_encoder
-    from .pictures import save_rows
-    from .tikhonov import pseudo_inverse, tikhonov
+    from ..privacy import metrics
+    from ..privacy.admm import admm
+    from ..privacy.operators import from_encoder
+    from ..privacy.pictures import save_rows
+    from ..privacy.tikhonov import pseudo_inverse, tikhonov
 
-    methods = _names(args.method, METHODS, "--method")
+    methods = _choices(args.method, METHODS, "--method")
     run, enc, _summary, run_dir = _encoder(args, extra)
     if args.out is None and run_dir is None:
         raise ConfigError("--out", None, "required with --encoder (the folder the pictures and arrays go to)")
@@ -135,13 +156,13 @@ def reconstruct(args, extra) -> int:
     if args.count < 1:
         raise ConfigError("--count", args.count, "must be >= 1")
     if args.image:
-        shape = _shape(args.scene_shape, "--scene-shape") if args.scene_shape else (28, 28)
+        shape = parse_hw("--scene-shape", args.scene_shape) if args.scene_shape else (28, 28)
         scenes, titles = _load_images(args.image, shape), [Path(f).name for f in args.image]
     else:
         splits = get_registry("dataset").get(run.names["dataset"])(run.dataset).load()
         scenes, labels = splits.test[0][: args.count].double(), splits.test[1][: args.count]
         if args.scene_shape:
-            shape = _shape(args.scene_shape, "--scene-shape")
+            shape = parse_hw("--scene-shape", args.scene_shape)
             scenes = torch.nn.functional.interpolate(scenes, size=shape, mode="area")
         titles = [f"label {int(v)}" for v in labels]
     print(f"operator of {enc.name} for {tuple(scenes.shape[-2:])} scenes", file=sys.stderr)
@@ -178,51 +199,64 @@ def reconstruct(args, extra) -> int:
     return 0
 
 
+def _counts(text: str, key: str) -> tuple[int, ...]:
+    """``"100,300"`` -> ``(100, 300)``, or a ConfigError naming ``key``."""
+    try:
+        out = tuple(int(v) for v in names(text))
+    except ValueError:
+        out = ()
+    if not out:
+        raise ConfigError(key, text, "comma-separated whole numbers, e.g. 100,1000")
+    return out
+
+
 def _evaluate_kw(args) -> dict:
     pc = PrivacyConfig(**_given(count=args.count, gallery=args.gallery, seed=args.seed,
-                                plaintext_n=tuple(int(v) for v in args.plaintext_n.split(",")) if args.plaintext_n else None))
+                                plaintext_n=_counts(args.plaintext_n, "--plaintext-n") if args.plaintext_n else None))
     lc = LearnedConfig(**_given(epochs=args.learned_epochs, pairs=args.learned_pairs))
     tc = TikhonovConfig(**_given(rcond=args.rcond))
-    return {"attacks": tuple(_names(args.attacks, ATTACKS, "--attacks")), "config": pc, "admm_config": _admm_config(args),
+    return {"attacks": tuple(_choices(args.attacks, ATTACKS, "--attacks")), "config": pc, "admm_config": _admm_config(args),
             "learned_config": lc, "linear_config": tc}
 
 
-def privacy(args, extra) -> int:
-    from ..cli import _split_overrides
-    from . import report
+def privacy(args: argparse.Namespace, extra) -> int:
+    from ..privacy import report
 
     if args.defence and not args.sweep:
         raise ConfigError("--defence", True, "needs --sweep DIR (the baseline and the defended runs side by side)")
     kw = _evaluate_kw(args)
     say = lambda msg: print(f"  {msg} ...", file=sys.stderr)  # noqa: E731
+    note = lambda msg: print(f"  note: {msg}", file=sys.stderr)  # noqa: E731
     chance = 1.0 / kw["config"].gallery
     if args.sweep:
         rows, cells = [], []
         for cell in report.sweep_cells(args.sweep):
             print(f"{cell.name}", file=sys.stderr)
-            cells.append((cell, report.measure_run(cell, kw, _split_overrides(extra), args.force, say)))
+            cells.append((cell, report.measure_run(cell, kw, split_overrides(extra), args.force, say, note=note)))
             rows += cells[-1][1]
         out = Path(args.out) if args.out else Path(args.sweep) / report.PRIVACY_DIR
         paths = report.write_sweep(rows, out, chance)
         if args.defence:
-            from . import defence
+            from ..privacy import defence
 
             paths += defence.write_defence(defence.defence_rows(cells), out)
     elif args.run:
         if len(args.run) > 1:
             raise ConfigError("--run", args.run, "give one run directory (several: put them in a --sweep folder)")
         out = Path(args.out) if args.out else Path(args.run[0]) / report.PRIVACY_DIR
-        rows = report.measure_run(Path(args.run[0]), kw, _split_overrides(extra), True, say, out)
+        rows = report.measure_run(Path(args.run[0]), kw, split_overrides(extra), True, say, out, note)
         paths = [out / "privacy.csv"]
     else:
         from ..plugins import get_registry
-        from .evaluate import evaluate
+        from ..privacy.evaluate import evaluate
 
         run, enc, _s, _d = _encoder(args, extra)
         if not args.out:
             raise ConfigError("--out", None, "required with --encoder (the folder the table and pictures go to)")
         splits = get_registry("dataset").get(run.names["dataset"])(run.dataset).load()
         result = evaluate(enc, splits, cache_root=run.trainer.cache_dir, progress=say, **kw)
+        for line in result.notes:
+            note(line)
         rows = report.run_rows(result, enc, {}, enc.name)
         out = Path(args.out)
         report.save_examples(out, result, enc.name)

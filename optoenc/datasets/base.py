@@ -8,9 +8,8 @@ from typing import Any, ClassVar, NamedTuple
 
 import torch
 
-from ..encoders.base import _coerce
 from ..errors import ConfigError, DataError
-from ..settings import Documented, Settings
+from ..settings import Documented, Settings, coerce
 
 __all__ = ["DatasetConfig", "Dataset", "Split", "Splits"]
 
@@ -83,11 +82,17 @@ class Splits:
                 raise DataError(f"dataset {name} split: images hold NaN or infinite values")
 
     def check_trainable(self) -> None:
-        """What a training run needs: >= 2 training examples, >= 1 for validation (model selection) and for the test.
+        """What a (classification) training run needs: labels of >= 2 classes, >= 2 training examples, >= 1 for
+        validation (model selection) and for the test.
 
         Raises:
             ConfigError: naming the size setting (``dataset.val_size``, ...).
         """
+        if self.num_classes < 2:
+            raise ConfigError(
+                "dataset", f"{self.num_classes} class, no labels", "a classification run needs labelled images of >= 2 "
+                "classes (set the dataset's labels or attribute setting)",
+            )
         if len(self.train.labels) < 2:
             raise ConfigError("dataset.train_size", len(self.train.labels), "must be >= 2 (a training batch needs two examples)")
         if len(self.val.labels) < 1:
@@ -123,7 +128,7 @@ class Dataset(Documented):
     num_classes: ClassVar[int] = 0
 
     def __init__(self, config: Any = None):
-        self.config = _coerce(self.Config, config, "dataset")
+        self.config = coerce(self.Config, config, "dataset")
 
     def load(self) -> Splits:
         """The train / val / test splits (validation carved from the training data), in memory."""

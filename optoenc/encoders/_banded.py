@@ -33,7 +33,7 @@ gradient with respect to ``W`` (the scene operator). Its plan is the
 
 :func:`row_runs_mm` is the same product for an operator held canvas row by canvas row (``(h, r, w)``,
 each row's ``(r, w)`` block contiguous: the layout the build produces with its rows sorted, see
-:func:`optoenc.encoders.imaging.scene_operator`): one product per canvas row, with the run of scenes
+:func:`optoenc.encoders.operator.scene_operator`): one product per canvas row, with the run of scenes
 that light it.
 """
 

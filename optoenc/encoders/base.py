@@ -2,10 +2,19 @@
 
 An encoder holds its physical settings (``Config``, SI units) and parameters,
 and supplies one thing: its intensity PSF on the simulation grid
-(:meth:`OpticalEncoder.compute_psf`). The base class does the rest with the
-shared imaging steps of :mod:`optoenc.encoders.imaging`: placing the scene in the
-object plane (magnification ``d2 / d1``), convolving, integrating over the
-sensor pixels and adding noise.
+(:meth:`OpticalEncoder.compute_psf`). The base class does the rest: the PSF as
+the sensor sees it, the scene -> embedding map (placing the scene in the
+object plane with magnification ``d2 / d1``, convolving, integrating over the
+sensor pixels: :class:`~optoenc.encoders.operator.SceneOperator`) and the
+sensor's noise (:mod:`optoenc.encoders.noise`).
+
+In your own training loop::
+
+    enc = optoenc.build_encoder("learned_slm")
+    y = enc(x)                      # (B, 1, h, w) intensities >= 0 -> noisy (B, C, a, b) embeddings
+    y0 = enc(x, noise=False)        # the same without noise: enc.measure(x)
+    loss(decoder(y), labels).backward(); optimiser.step()
+    enc.constrain_()                # after every optimiser step (the projected parameterisation needs it)
 """
 
 from __future__ import annotations
@@ -21,27 +30,21 @@ from typing import Any, ClassVar, Mapping
 import torch
 from torch import nn
 
-from .. import hardware, limits
+from .. import limits
 from ..errors import ConfigError, DataError
-from ..fidelity.knobs import FidelityConfig
-from ..settings import Documented, Settings, setting
-from . import banded, imaging
+from .fidelity import FidelityConfig
+from ..settings import Documented, Settings, coerce, setting
+from . import imaging
 from .geometry import Geometry, SceneConfig, SensorConfig
+from .noise import add_noise, photon_noise, quantize, snr_sigma
+from . import sensor as colour_sensor
+from ._operator_cache import OperatorCache
+from .operator import SceneOperator
 
 __all__ = ["EncoderConfig", "OpticalEncoder"]
 
-#: Up to this many operator entries the operator is always used; above it only while it is smaller than what
-#: the fine-grid (FFT) path would allocate for the batch, and never above _HARD_MAX_OPERATOR_ENTRIES (1 GiB).
-_MAX_OPERATOR_ENTRIES = 40_000_000
-_HARD_MAX_OPERATOR_ENTRIES = 2**28
-#: The fine-grid path convolves at most this many padded complex samples at once (~1 GiB); larger batches go
-#: in chunks.
-_DIRECT_CHUNK_SAMPLES = 2**26
-#: Scene geometries whose correlation tensors are kept (oldest dropped first).
-_MAX_GEOMETRIES = 4
-#: :meth:`OpticalEncoder.support_region` builds the operator of the scenes' support when that costs less than
-#: this fraction of the whole operator's multiply-adds (a margin for the slicing copies).
-_REGION_GAIN = 0.8
+#: The precisions an encoder's optics compute in (``fidelity.dtype``; ``.to(dtype)`` changes it).
+_OPTICS_DTYPES = (torch.float32, torch.float64)
 
 
 @dataclass
@@ -51,25 +54,9 @@ class EncoderConfig(Settings):
     d2: float = setting(4e-3, "encoder-to-sensor distance d2", unit="m", gt=0)
 
 
-def _coerce(cls: type, value: Any, section: str) -> Any:
-    if value is None:
-        return cls()
-    if isinstance(value, cls):
-        return value
-    if isinstance(value, Mapping):
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(value) - names)
-        if unknown:
-            raise ConfigError(f"{section}.{unknown[0]}", value[unknown[0]], f"unknown setting; known: {', '.join(sorted(names))}")
-        try:
-            return cls(**value)
-        except ConfigError as err:
-            raise err.with_prefix(section) from None
-    raise ConfigError(section, value, f"must be a {cls.__name__} or a mapping")
-
-
 def _as_intensity(scene: Any) -> torch.Tensor:
-    """A floating-point ``(B, C, h, w)`` scene: integer images scaled by their dtype's maximum, non-finite refused."""
+    """A floating-point ``(B, C, h, w)`` scene: integer images scaled by their dtype's maximum; non-finite or negative
+    pixels refused."""
     if not isinstance(scene, torch.Tensor):
         raise ConfigError("scene", type(scene).__name__, "must be a torch.Tensor of shape (batch, channels, height, width)")
     if scene.dim() != 4:
@@ -79,12 +66,17 @@ def _as_intensity(scene: Any) -> torch.Tensor:
     if scene.dtype == torch.bool:
         return scene.to(torch.float32)
     if not scene.is_floating_point():
-        return scene.to(torch.float32) / float(torch.iinfo(scene.dtype).max)
-    # A NaN or infinity makes the sum non-finite (one cheap pass over a large canvas); only then is every
-    # pixel looked at (finite values whose sum overflows are fine).
-    if not bool(torch.isfinite(scene.detach().sum())) and not bool(torch.isfinite(scene.detach()).all()):
+        scene = scene.to(torch.float32) / float(torch.iinfo(scene.dtype).max)
+    if scene.numel() == 0:
+        return scene
+    # One pass for both checks: a NaN makes both extremes NaN, an infinity one of them infinite; only then is
+    # every pixel looked at.
+    lo, hi = (float(v) for v in torch.aminmax(scene.detach()))
+    if not (math.isfinite(lo) and math.isfinite(hi)):
         bad = int((~torch.isfinite(scene.detach())).sum())
         raise DataError(f"scene: {bad} pixel(s) are NaN or infinite; intensities must be finite")
+    if lo < 0:
+        raise DataError(f"scene minimum = {lo:.6g}: must be >= 0 (intensities)")
     return scene
 
 
@@ -100,6 +92,21 @@ def _drop_graph(encoder_ref, token, grad):
 
 class OpticalEncoder(Documented, nn.Module, abc.ABC):
     """An optical encoder: scene ``(B, C, h, w)`` -> sensor embedding ``(B, C_out, a, b)``.
+
+    What a library user calls:
+
+    * :meth:`forward` (``enc(x)``): noisy embeddings; ``enc(x, noise=False)`` is :meth:`measure`;
+    * :meth:`measure`: noise-free embeddings of non-negative intensities (``C`` 1 or the sensor's channels);
+    * :meth:`psf`: the normalised PSF the sensor sees, ``(channels, H, W)`` (times the throughput under
+      ``sensor.exposure=fixed``);
+    * :meth:`throughput`: the light collected relative to a fully open aperture of the same size;
+    * :meth:`operator`: the scene -> embedding map as a :class:`~optoenc.encoders.operator.SceneOperator`
+      (apply, the ``(C, a, b, h, w)`` tensor, the float64 matrix and its adjoint);
+    * :meth:`constrain_`: after every optimiser step (a projected mask is clamped back into ``[0, 1]``);
+    * :meth:`mask`: the element for pictures (a mask encoder's
+      :meth:`~optoenc.encoders.mask.MaskEncoder.field_mask` is the field grid's; the LCDs'
+      ``displayed_amplitudes()`` their sub-pixels' amplitudes whatever the parameterisation);
+    * ``.to(device)``, ``.to(torch.float64)`` / ``.double()``: parameters, buffers and optics together.
 
     Subclasses set ``name`` (the registry name), ``Config`` (a dataclass
     deriving from :class:`EncoderConfig`), the capability flags ``learnable``
@@ -119,26 +126,6 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
     #: Measured per-preset knob values for this encoder (e.g. a grid that
     #: avoids moire with its mask's pitch), over the shared preset table.
     fidelity_presets: ClassVar[dict[str, dict]] = {}
-    #: :meth:`measure` builds the operator of the batch's nonzero pixels only, where cheaper
-    #: (:meth:`support_region`; exact); False: always the whole scene's.
-    support_regions: bool = True
-    #: :meth:`operator` builds with the correlation tensors' zeros skipped where they are banded, and
-    #: :meth:`measure` applies it to the rows of the scenes that are nonzero (:mod:`optoenc.encoders.banded`;
-    #: exact); False: the dense products (the reference of ``optoenc bench steps --against banded``).
-    banded_operators: bool = True
-    #: The banded build may take the correlation tensors' rows in the order of their bands, in taller
-    #: blocks (:class:`optoenc.encoders.banded.BandPlan`, ``sort_rows``; exact); False: consecutive rows
-    #: only (the reference of ``optoenc bench steps --against sorted``).
-    sorted_band_rows: bool = True
-    #: The sorted build's operator is held canvas row by canvas row and applied so, without copies
-    #: (:func:`optoenc.encoders.imaging.scene_operator`, ``row_major``; exact); False: copied into the
-    #: contiguous ``(C, a, b, h, w)`` layout (the reference of ``optoenc bench steps --against rows``).
-    row_major_operators: bool = True
-    #: A bfloat16 operator on a CPU whose matrix units multiply bfloat16 (AMX) is built by dense products
-    #: in the layout one product applies (:func:`optoenc.encoders.imaging.scene_operator`, ``matrix_units``;
-    #: the same sums up to their order); False: the banded build (the reference of ``optoenc bench steps
-    #: --against matrix_units``).
-    matrix_unit_operators: bool = True
 
     def lr_scales(self) -> dict[str, float]:
         """Learning rate of named parameters relative to ``trainer.encoder_lr`` (others: 1).
@@ -150,8 +137,10 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         return {}
 
     def constrain_(self) -> None:
-        """Bring constrained parameters back into their domain after an optimiser step (projected gradient);
-        the trainer calls it after every step. Default: nothing to do."""
+        """Bring constrained parameters back into their domain after an optimiser step (projected gradient).
+
+        The trainer calls it after every step; in your own loop call it after each ``optimiser.step()``.
+        Default: nothing to do."""
 
     def __init__(
         self,
@@ -162,12 +151,12 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         fidelity: FidelityConfig | Mapping | None = None,
     ):
         super().__init__()
-        self.config = _coerce(self.Config, config, "encoder")
-        self.scene_config = _coerce(SceneConfig, scene, "scene")
-        self.sensor = _coerce(SensorConfig, sensor, "sensor")
+        self.config = coerce(self.Config, config, "encoder")
+        self.scene_config = coerce(SceneConfig, scene, "scene")
+        self.sensor = coerce(SensorConfig, sensor, "sensor")
         #: Bound to this class's ``fidelity_presets``: ``self.fidelity.resolved() == self.knobs``.
-        self.fidelity = _coerce(FidelityConfig, fidelity, "fidelity").bind(type(self).fidelity_presets)
-        #: The resolved fidelity knobs (:class:`optoenc.fidelity.knobs.Knobs`: preset, this encoder's overrides, explicit knobs).
+        self.fidelity = coerce(FidelityConfig, fidelity, "fidelity").bind(type(self).fidelity_presets)
+        #: The resolved fidelity knobs (:class:`optoenc.encoders.fidelity.Knobs`: preset, this encoder's overrides, explicit knobs).
         self.knobs = self.fidelity.resolved()
         limits.check_simulation(self.knobs)  # before any array is made: a grid that cannot fit fails here
         self.geometry = Geometry.of(self.sensor, self.fidelity)
@@ -177,10 +166,12 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         self._check_object_size()
         #: ``(state key, PSF, token of its hook or None)``
         self._psf_cache: tuple[Any, torch.Tensor, object | None] | None = None
-        self._op_cache: dict[Any, Any] = {}
-        # Empty, not saved: follows ``.to(device)`` also where an encoder has no parameters or buffers (a fixed PSF),
-        # so that :attr:`device` and the caches' keys know where the module is.
-        self.register_buffer("_device_anchor", torch.zeros(0), persistent=False)
+        #: The scene operator's caches and choice of algorithm (:mod:`optoenc.encoders.operator`).
+        self._operators = OperatorCache()
+        # Empty, not saved, in the optics' precision: follows ``.to(device)`` and ``.to(dtype)`` also where an
+        # encoder has no parameters or buffers (a fixed PSF), so that :attr:`device`, the caches' keys and
+        # :meth:`_apply` know where the module is and what precision it is asked for.
+        self.register_buffer("_device_anchor", torch.zeros(0, dtype=self.optics_dtype), persistent=False)
 
     # ----------------------------------------------------------------- to implement
     @abc.abstractmethod
@@ -189,8 +180,10 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
 
         The channels must be on one power scale: channel ``c`` is the
         intensity at the sensor per unit source power at wavelength ``c``, so
-        a colour filter that passes less light gives a dimmer channel (only
-        the ratios matter; one shared factor is removed by :meth:`psf`). A
+        a colour filter that passes less light gives a dimmer channel (under
+        ``sensor.exposure=scene`` only the ratios matter: one shared factor is
+        removed by :meth:`psf`; under ``fixed`` its power relative to
+        :meth:`open_power` is the :meth:`throughput`). A
         PSF whose channels carry no such meaning (a measured file) is
         normalised per channel here with
         :func:`optoenc.encoders.imaging.normalize_channels`.
@@ -211,6 +204,15 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         ``[0, 1]`` (drawn as gray or RGB), or a complex transmittance (drawn
         as a phase map). :class:`~optoenc.encoders.mask.MaskEncoder`
         propagates what it returns.
+        """
+        return None
+
+    def open_power(self) -> float | None:
+        """The spectrally weighted total of :meth:`compute_psf` for the fully open aperture of the same size.
+
+        With it the PSF's power is absolute: :meth:`throughput` is the PSF's total over it. ``None`` (the
+        default): :meth:`compute_psf` has no absolute scale (a measured PSF, a plugin's), and the element is
+        taken as fully transmissive (throughput 1). :class:`~optoenc.encoders.mask.MaskEncoder` computes it.
         """
         return None
 
@@ -261,20 +263,52 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
 
     @property
     def channels(self) -> int:
-        """Output channels: 1 for a gray sensor, 3 for RGB."""
+        """Colour planes the sensor's PSF and operator have: 1 for a gray sensor, 3 for RGB and Bayer."""
         return 1 if self.sensor.color == "gray" else 3
 
     @property
     def output_shape(self) -> tuple[int, int, int]:
-        """``(C, a, b)`` of one embedding."""
-        return (self.channels, *self.geometry.embedding)
+        """``(C, a, b)`` of one embedding: 1 channel for a gray or Bayer (mosaic) sensor, 3 for RGB."""
+        return (1 if self.sensor.color == "bayer" else self.channels, *self.geometry.embedding)
 
-    # ----------------------------------------------------------------- PSF
+    # ----------------------------------------------------------------- device and precision
     @property
     def device(self) -> torch.device:
         """Where the module is (``.to(device)`` moves it): its PSF and operators are built and returned there."""
         return self._device_anchor.device
 
+    def _apply(self, fn, recurse=True):
+        """``.to(device)``, ``.to(dtype)``, ``.double()``, ``.float()``: parameters, buffers and the optics together.
+
+        A floating-point precision moves the optics too: ``self.optics_dtype`` (``fidelity.dtype``, the PSF and the
+        measurement) becomes it, and so does the operator's where ``fidelity.operator_dtype`` is ``"same"`` (an
+        explicit operator precision, e.g. bfloat16, is kept); the cached PSF and operators are dropped.
+
+        Raises:
+            ConfigError: a precision the optics cannot compute in (float16, bfloat16): float32 or float64.
+        """
+        anchor = getattr(self, "_device_anchor", None)
+        target = None if anchor is None else fn(anchor).dtype  # what this conversion makes of a float tensor
+        if target is not None and target != self.optics_dtype and target not in _OPTICS_DTYPES:
+            raise ConfigError("encoder dtype", str(target).replace("torch.", ""),
+                              "the optics compute in float32 or float64 (fidelity.dtype); "
+                              "the operator alone may run in bfloat16 (fidelity.operator_dtype)")
+        out = super()._apply(fn, recurse)
+        if target is not None and target != self.optics_dtype:
+            self._set_optics_dtype(target)
+        return out
+
+    def _set_optics_dtype(self, dtype: torch.dtype) -> None:
+        name = str(dtype).replace("torch.", "")
+        self.fidelity = dataclasses.replace(self.fidelity, dtype=name).bind(type(self).fidelity_presets)
+        self.knobs = self.knobs.replace(dtype=name)
+        self.optics_dtype = dtype
+        if self.knobs.operator_dtype == "same":
+            self.operator_dtype = dtype
+        self.invalidate_psf()
+        self._operators.clear()
+
+    # ----------------------------------------------------------------- PSF
     def _state_key(self) -> tuple:
         # The device: an empty buffer's data_ptr is 0 wherever it lives, and a fixed encoder may hold no other.
         return (torch.is_grad_enabled() and self.training, str(self.device)) + tuple(
@@ -284,7 +318,7 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
     def invalidate_psf(self) -> None:
         """Forget the cached PSF and the operator built from it: the next :meth:`psf` recomputes them."""
         self._psf_cache = None
-        self._op_cache.pop("op", None)
+        self._operators.forget_operator()
 
     def psf(self) -> torch.Tensor:
         """Normalised intensity PSF as the sensor sees it: ``(channels, H, W)``.
@@ -293,8 +327,9 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         power (one normalisation shared by all channels,
         :func:`optoenc.encoders.imaging.normalize_psf`): a gray sensor sees
         ``sum_c w_c PSF_c`` with :data:`optoenc.devices.GRAYSCALE_WEIGHTS`,
-        summing to one; an RGB sensor sees the channels, whose weighted sums
-        add to one. The PSF is recomputed only when a parameter changes (once
+        summing to one; an RGB (or Bayer) sensor sees the channels, whose weighted sums
+        add to one. Under ``sensor.exposure=fixed`` it is then multiplied by
+        the :meth:`throughput` (its absolute power). The PSF is recomputed only when a parameter changes (once
         per optimiser step when learning).
         """
         key = self._state_key()
@@ -307,6 +342,8 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
                 f"expected (1 or 3, {self.geometry.grid[0]}, {self.geometry.grid[1]})"
             )
         psf = imaging.sensor_psf(raw, self.channels, name=f"encoder {self.name}")
+        if self.sensor.exposure == "fixed":  # the absolute power: the normalised PSF times the throughput
+            psf = psf * self._throughput_of(raw)
         token = None
         if psf.requires_grad:  # a backward pass frees the graph behind it: the next forward rebuilds it
             token = object()  # the hook holds neither the PSF nor the encoder: no reference cycle keeps a graph
@@ -314,157 +351,56 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         self._psf_cache = (key, psf, token)
         return psf
 
-    # ----------------------------------------------------------------- imaging
-    def _geometry_factors(self, scene_shape: tuple[int, int], height_px: float, device, dense: bool = False):
-        """``(ry, rx, spans)``: the correlation tensors and their row spans (:func:`banded.row_spans`), cached.
+    def _throughput_of(self, raw: torch.Tensor) -> torch.Tensor:
+        open_power = self.open_power()
+        if open_power is None:
+            return torch.ones((), dtype=raw.dtype, device=raw.device)
+        return imaging.psf_power(raw) / open_power
 
-        ``dense``: instead, their :func:`imaging.dense_factors` (the matrix-unit build's), made on first use and
-        cached in the same entry.
+    def throughput(self) -> float:
+        """Light collected, relative to a fully open aperture of the same size (1: all of it).
+
+        The spectrally weighted power of :meth:`compute_psf` (:func:`~optoenc.encoders.imaging.psf_power`,
+        the sensor's :data:`~optoenc.devices.GRAYSCALE_WEIGHTS`) over :meth:`open_power`: what every colour
+        filter, sub-pixel and opaque part lets through to the sensor. 1 where the PSF has no absolute scale.
+        Under ``sensor.exposure=fixed`` :meth:`psf` carries this factor.
         """
-        key = ("corr", scene_shape, round(height_px, 9), self.operator_dtype, str(device), self.sensor.sampling)
-        if key not in self._op_cache:
-            H, W = self.geometry.grid
-            a, b = self.geometry.embedding
-            s = self.subcells
-            # s > 1: the scene is placed and integrated on an s-times finer grid while the
-            # PSF's grid values are cell averages: the scene keeps its sub-pixel structure.
-            py, px = imaging.placement_matrices(scene_shape, (H * s, W * s), height_px * s, pixel_aspect=self.pixel_aspect)
-            sampling = self.sensor.sampling
-            ry = imaging.correlation_tensor(imaging.sampling_matrix(H * s, a, sampling), py, H, sub=s)
-            rx = imaging.correlation_tensor(imaging.sampling_matrix(W * s, b, sampling), px, W, sub=s)
-            # Bounded: a learned d2 changes the height every step.
-            stale = [k for k in self._op_cache if k[0] == "corr"]
-            for k in stale[: max(0, len(stale) - _MAX_GEOMETRIES + 1)]:
-                del self._op_cache[k]
-            ry, rx = ry.to(device, self.operator_dtype), rx.to(device, self.operator_dtype)
-            # Where each flattened row's nonzero entries lie: the banded build's plan (imaging.scene_operator).
-            spans = tuple(banded.row_spans(r.reshape(-1, r.shape[-1])) for r in (ry, rx))
-            # ry held as (h, a, Hp), its (a, h, Hp) view: the sorted build reads it in canvas-row order
-            # without a copy, also cut to a region's rows (imaging.scene_operator).
-            ry = ry.transpose(0, 1).contiguous().transpose(0, 1)
-            self._op_cache[key] = [ry, rx, spans, None]  # None: the dense factors, made on first use
-        entry = self._op_cache[key]
-        if not dense:
-            return tuple(entry[:3])
-        if entry[3] is None:
-            entry[3] = imaging.dense_factors(entry[0], entry[1])
-        return entry[3]
+        with torch.no_grad():
+            return float(self._throughput_of(self.compute_psf().to(self.device)))
 
-    def _uses_matrix_units(self, device) -> bool:
-        """Whether :meth:`operator` builds by dense products for the CPU's matrix units (:attr:`matrix_unit_operators`):
-        a bfloat16 operator on a CPU with them (the one place this is decided; ``scene_operator`` does as told)."""
-        return (self.matrix_unit_operators and self.operator_dtype == torch.bfloat16 and torch.device(device).type == "cpu"
-                and hardware.matrix_units())
+    # ----------------------------------------------------------------- imaging
+    def operator(self, scene_shape: tuple[int, int], height: float | None = None, scene_channels: int = 1) -> SceneOperator:
+        """The scene -> embedding map for ``(h, w)`` scenes of physical height ``height`` metres.
 
-    @staticmethod
-    def _region_spans(spans, scene_shape, region):
-        """The row spans of the correlation tensors cut to the scene ``region`` (None: all of them)."""
-        if region is None:
-            return spans
-        r0, r1, c0, c1 = region
-        h, w = scene_shape
-
-        def cut(pair, n, i0, i1):  # the rows (embedding row, scene row i0..i1) of a flattened (out, n) tensor
-            return tuple(t.reshape(-1, n)[:, i0:i1].reshape(-1) for t in pair)
-
-        return cut(spans[0], h, r0, r1), cut(spans[1], w, c0, c1)
-
-    def operator(self, scene_shape: tuple[int, int], height: float | None = None,
-                 region: tuple[int, int, int, int] | None = None) -> torch.Tensor:
-        """The ``(C, a, b, h, w)`` matrix from scene pixels to embedding pixels (noise-free).
-
-        Exact for a piecewise-constant scene: it equals place -> convolve ->
-        integrate on the simulation grid (see :mod:`optoenc.encoders.imaging`).
-        Built and held in ``self.operator_dtype`` (``fidelity.operator_dtype``).
-        The banded build may return it as a view held canvas row by canvas row
-        (:func:`optoenc.encoders.imaging.scene_operator`, :attr:`row_major_operators`):
-        ``.reshape`` or ``.contiguous()`` copies it where a flat matrix is needed.
+        A :class:`~optoenc.encoders.operator.SceneOperator` that follows this encoder's parameters:
+        ``op(x)`` measures as :meth:`measure` does, ``op.tensor()`` is the ``(C, a, b, h, w)`` matrix
+        (differentiable, in ``fidelity.operator_dtype``), ``op.dense()`` / ``op.adjoint(y)`` / ``op.gram()``
+        the float64 linear algebra for reconstruction.
 
         Args:
-            region: ``(r0, r1, c0, c1)``: only the columns of scene pixels
-                ``[r0, r1) x [c0, c1)`` of the ``scene_shape`` scene, a
-                ``(C, a, b, r1 - r0, c1 - c0)`` operator (not cached), equal
-                to ``operator(scene_shape)[..., r0:r1, c0:c1]`` for a fraction
-                of its cost. None: the whole scene (cached until a parameter
-                changes).
+            scene_shape: ``(h, w)`` scene pixels.
+            height: physical height of the scene image, a finite number > 0 (default ``scene.object_height``).
+            scene_channels: 1 (a gray scene seen by every sensor channel) or the sensor's channels.
+
+        Raises:
+            ConfigError: a bad ``height`` or ``scene_channels``.
         """
-        psf = self.psf()
-        height_px = self.object_height_px(height)
-        ry, rx, spans = self._geometry_factors(tuple(scene_shape), height_px, psf.device)
-        spans = self._region_spans(spans, tuple(scene_shape), region) if self.banded_operators else False
-        units = self._uses_matrix_units(psf.device)
-        if region is not None:
-            r0, r1, c0, c1 = region
-            return imaging.scene_operator(psf.to(self.operator_dtype), ry[:, r0:r1], rx[:, c0:c1], spans, self.sorted_band_rows,
-                                          self.row_major_operators, units)
-        key = ("op", tuple(scene_shape), height, self._state_key())
-        cached = self._op_cache.get("op")
-        if cached is not None and cached[0] == key:
-            return cached[1]
-        factors = self._geometry_factors(tuple(scene_shape), height_px, psf.device, dense=True) if units else None
-        op = imaging.scene_operator(psf.to(self.operator_dtype), ry, rx, spans, self.sorted_band_rows, self.row_major_operators,
-                                    units, factors)
-        self._op_cache["op"] = (key, op)
-        return op
+        return SceneOperator(self, scene_shape, height, scene_channels)
 
-    def support_region(self, scene: torch.Tensor, height: float | None = None) -> tuple[int, int, int, int] | None:
-        """The region :meth:`measure` builds its operator for: the batch's nonzero pixels, or None (all).
+    def _checked_scene(self, scene: Any) -> torch.Tensor:
+        """``scene`` as floating-point intensities (:func:`_as_intensity`) with channels the sensor takes: an
+        R, G, B scene on a gray sensor becomes its luminance (:func:`optoenc.encoders.sensor.to_luminance`)."""
+        x = _as_intensity(scene)
+        if x.shape[1] == 3 and self.channels == 1:
+            return colour_sensor.to_luminance(x)
+        if x.shape[1] not in (1, 3):
+            raise ConfigError("scene channels", x.shape[1],
+                              "must be 1 (gray) or 3 (R, G, B), whatever the sensor (sensor.color)")
+        return x
 
-        Zero pixels contribute nothing, so the operator restricted to the
-        bounding box of the pixels that are nonzero in any scene of the batch
-        gives the same embeddings (and gradients) as the whole operator. It is
-        used where it costs fewer multiply-adds than the whole one: building
-        ``(a, h, Hp)`` correlations into a PSF costs ``C a h Hp Wp + C a b h w Wp``
-        and applying it ``B C a b h w``; the whole operator is free to build
-        while it is cached (a fixed PSF), never while a learned PSF changes every
-        step. On an augmentation canvas (the field of view, ~20 times a digit)
-        a rotated or rescaled digit covers a few percent of the pixels.
-        :attr:`support_regions` False: always None (the reference of ``optoenc bench steps``).
-        """
-        if not self.support_regions:
-            return None
-        h, w = scene.shape[-2:]
-        flat = scene.detach().flatten(0, -3)
-        on = (flat.amax(0) > 0) | (flat.amin(0) < 0)  # (h, w); two reductions: 7x cheaper than ne().any()
-        rows, cols = on.any(1).nonzero(), on.any(0).nonzero()
-        if len(rows) == 0:
-            return (0, 1, 0, 1)  # all dark: any single pixel gives the zero embedding
-        r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
-        return self._cheaper_region(len(scene), (h, w), height, (r0, r1, c0, c1))
-
-    def _cheaper_region(self, batch: int, shape: tuple[int, int], height, region) -> tuple[int, int, int, int] | None:
-        """``region`` where its operator costs fewer multiply-adds than the whole scene's, else None."""
-        (h, w), (r0, r1, c0, c1) = shape, region
-        if (r1 - r0, c1 - c0) == (h, w):
-            return None
-        C, (a, b), (Hp, Wp) = self.channels, self.geometry.embedding, self.geometry.grid
-        build = lambda n, m: C * a * n * Hp * Wp + C * a * b * n * m * Wp  # noqa: E731
-        apply = lambda n, m: batch * C * a * b * n * m  # noqa: E731
-        cached = self._op_cache.get("op")
-        whole_cached = cached is not None and cached[0] == ("op", (h, w), height, self._state_key())
-        whole = (0 if whole_cached else build(h, w)) + apply(h, w)
-        part = build(r1 - r0, c1 - c0) + apply(r1 - r0, c1 - c0)
-        return (r0, r1, c0, c1) if part < _REGION_GAIN * whole else None
-
-    def _padded_samples(self) -> int:
-        """Complex samples per image and channel of the fine-grid path's zero-padded convolution (about)."""
-        return 4 * self.geometry.grid[0] * self.geometry.grid[1] * self.subcells**2
-
-    def auto_method(self, batch: int, scene_shape: tuple[int, int]) -> str:
-        """``measure``'s ``"auto"`` choice for ``batch`` scenes of ``scene_shape`` pixels.
-
-        The operator (one matrix product per batch) up to :data:`_MAX_OPERATOR_ENTRIES` entries, and
-        beyond while it takes less memory than the fine-grid path would for the batch (a wide
-        augmentation canvas on a fine grid: the FFT path needed ~20 GB per 1000 scenes); the
-        fine-grid path above 1 GiB of operator.
-        """
-        a, b = self.geometry.embedding
-        entries = self.channels * a * b * scene_shape[0] * scene_shape[1]
-        # A batch's tail (fewer scenes) makes the same choice as its siblings: counted as at least 64 scenes.
-        direct = max(batch, 64) * self.channels * self._padded_samples()
-        if entries <= _MAX_OPERATOR_ENTRIES or entries <= min(direct, _HARD_MAX_OPERATOR_ENTRIES):
-            return "operator"
-        return "direct"
+    def _read_out(self, planes: torch.Tensor) -> torch.Tensor:
+        """What the sensor reads of its colour planes: the planes, or a Bayer sensor's mosaic of them."""
+        return colour_sensor.mosaic(planes) if self.sensor.color == "bayer" else planes
 
     def measure(self, scene: torch.Tensor, height: float | None = None, method: str = "auto") -> torch.Tensor:
         """Noise-free embedding of ``(B, C, h, w)`` scenes of physical height ``height`` metres.
@@ -476,7 +412,7 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
                 (``uint8``: 255, so 255 is full scale 1.0); ``bool`` is 0 / 1.
             height: physical height of the scene image, a finite number > 0
                 (default ``scene.object_height``).
-            method: ``"operator"`` (precomputed scene->embedding matrix),
+            method: ``"operator"`` (the scene -> embedding matrix, :meth:`operator`),
                 ``"direct"`` (place, FFT-convolve and integrate on the grid)
                 or ``"auto"`` (operator unless it would be too large). The
                 operator's products run in ``fidelity.operator_dtype``; the
@@ -487,14 +423,12 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
             ``(B, channels, a, b)`` in the scene's dtype (``float32`` for integer or bool scenes).
 
         Raises:
-            DataError: NaN or infinite pixels. ConfigError: a bad shape or ``height``.
+            DataError: NaN, infinite or negative pixels. ConfigError: a bad shape, channel count or ``height``.
         """
-        scene = _as_intensity(scene)
+        scene = self._checked_scene(scene)
         self._check_height(height)
-        if method == "auto":
-            method = self.auto_method(len(scene), tuple(scene.shape[-2:]))
         with torch.autocast(scene.device.type, enabled=False):  # the optics keep their own precisions
-            out = self._measure(scene, height, method)
+            out = self._read_out(self._operators.measure(self, scene, height, method))
         return out.to(scene.dtype)
 
     def _check_height(self, height) -> None:
@@ -503,124 +437,35 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
                 raise ConfigError("height", height, "must be a finite number > 0 m (the scene's physical height)")
             self._check_object_size(height)
 
-    def measure_window(self, windows: torch.Tensor, corner: tuple[int, int], scene_shape: tuple[int, int],
-                       height: float | None = None) -> torch.Tensor:
-        """Noise-free embeddings of ``scene_shape`` scenes that are zero outside one window, given its pixels.
-
-        ``windows`` ``(B, C, h, w)`` are the scenes' pixels ``[r0, r0 + h) x [c0, c0 + w)``, ``corner =
-        (r0, c0)``; every other pixel is zero. The same as :meth:`measure` of the whole scenes, without
-        building them: the operator of the window alone where that is cheaper (:meth:`support_region`).
-        """
-        r0, c0 = (int(v) for v in corner)
-        h, w = windows.shape[-2:]
-        H, W = (int(v) for v in scene_shape)
-        if r0 < 0 or c0 < 0 or r0 + h > H or c0 + w > W:
-            raise ConfigError("window", (r0, c0, h, w), f"must lie within the {H} x {W} scene")
-        x = _as_intensity(windows)
-
-        def laid(dtype, whole: bool) -> torch.Tensor:
-            v = self._in_optics(x, dtype)
-            if not whole:
-                return v.to(dtype)
-            scenes = x.new_zeros(*x.shape[:2], H, W, dtype=dtype)
-            scenes[..., r0 : r0 + h, c0 : c0 + w] = v
-            return scenes
-
-        return self._measure_laid(x, (r0, r0 + h, c0, c0 + w), (H, W), height, laid)
-
-    def measure_pasted(self, windows: torch.Tensor, offsets: torch.Tensor, part: tuple[int, int, int, int],
-                       scene_shape: tuple[int, int], height: float | None = None) -> torch.Tensor:
-        """Noise-free embeddings of ``scene_shape`` scenes that are zero but for one window each.
-
-        ``windows`` ``(B, C, h, w)``: example ``b``'s pixels from ``offsets[b]`` (row, column; ``(B, 2)``
-        integers) on; every window lies in ``part = (r0, r1, c0, c1)``. The same numbers as
-        :meth:`measure_window` of the windows pasted on ``part`` (the operator of ``part`` alone where that is
-        cheaper), without that intermediate: the windows are pasted where the operator reads them, in its
-        precision (a shifted digit's window is ~5 % of Table 3's canvas).
-        """
-        r0, r1, c0, c1 = (int(v) for v in part)
-        h, w = windows.shape[-2:]
-        H, W = (int(v) for v in scene_shape)
-        offsets = offsets.to(windows.device, torch.long)
-        lo, hi = offsets.amin(0).tolist(), (offsets.amax(0) + torch.tensor([h, w], device=offsets.device)).tolist()
-        if r0 < 0 or c0 < 0 or r1 > H or c1 > W or lo[0] < r0 or lo[1] < c0 or hi[0] > r1 or hi[1] > c1:
-            raise ConfigError("windows", (tuple(lo), tuple(hi)),
-                              f"must lie within the part {(r0, r1, c0, c1)} of the {H} x {W} scene")
-        x = _as_intensity(windows)
-
-        def laid(dtype, whole: bool) -> torch.Tensor:
-            v = self._in_optics(x, dtype).to(dtype)
-            if whole:
-                return imaging.paste(v, offsets, (H, W))
-            return imaging.paste(v, offsets - torch.tensor([r0, c0], device=offsets.device), (r1 - r0, c1 - c0))
-
-        return self._measure_laid(x, (r0, r1, c0, c1), (H, W), height, laid)
-
-    def _in_optics(self, x: torch.Tensor, dtype) -> torch.Tensor:
-        """``x`` rounded through the optics' precision on its way to ``dtype``, as :meth:`measure` rounds it; as it
-        is where it is already in either (a bfloat16 window from autocast: the same values)."""
-        return x if x.dtype in (self.optics_dtype, dtype) else x.to(self.optics_dtype)
-
-    def _measure_laid(self, x: torch.Tensor, region: tuple[int, int, int, int], scene_shape: tuple[int, int],
-                      height, laid) -> torch.Tensor:
-        """:meth:`measure_window`'s and :meth:`measure_pasted`'s embeddings of scenes zero outside ``region``:
-        ``laid(dtype, whole)`` lays out their pixels in ``dtype``, over ``region`` or (``whole``) the whole scene."""
-        self._check_height(height)
-        H, W = scene_shape
-        if self.support_regions and self.auto_method(len(x), (H, W)) == "operator":
-            with torch.autocast(x.device.type, enabled=False):  # the optics keep their own precisions
-                if self._cheaper_region(len(x), (H, W), height, region) == region:
-                    op = self.operator((H, W), height, region)
-                    scenes = laid(op.dtype, False)
-                else:
-                    # The whole scene's operator: the region holds every nonzero pixel and is no cheaper, so no
-                    # part of it is looked for (measure's support_region: a scan of the whole canvas), and the
-                    # scenes are laid out in the operator's precision at once (a float padding and its conversion:
-                    # ~4 ms of Table 3's 24x32 shift step on one core).
-                    op = self.operator((H, W), height)
-                    scenes = laid(op.dtype, True)
-                out = imaging.apply_operator(op, scenes, self.banded_operators).to(self.optics_dtype)
-            return out.to(x.dtype)
-        return self.measure(laid(x.dtype, True), height)
-
-    def _measure(self, scene: torch.Tensor, height: float | None, method: str) -> torch.Tensor:
-        a, b = self.geometry.embedding
-        x = scene.to(self.optics_dtype)
-        if method == "operator":
-            region = self.support_region(x, height)
-            op = self.operator(scene.shape[-2:], height, region)
-            if region is not None:
-                r0, r1, c0, c1 = region
-                x = x[..., r0:r1, c0:c1]
-            out = imaging.apply_operator(op, x.to(op.dtype), self.banded_operators).to(self.optics_dtype)
-        elif method == "direct":
-            s = self.subcells  # the same sub-pixel scene geometry as the operator
-            grid = tuple(n * s for n in self.geometry.grid)
-            psf = imaging.subcell_psf(self.psf(), s)
-            step = max(1, _DIRECT_CHUNK_SAMPLES // (self.channels * self._padded_samples()))
-            out = torch.cat([
-                imaging.integrate(imaging.fft_convolve(
-                    imaging.place(x[i : i + step], grid, self.object_height_px(height) * s, pixel_aspect=self.pixel_aspect),
-                    psf[None]), (a, b), self.sensor.sampling)
-                for i in range(0, len(x), step)])
-        else:
-            raise ConfigError("method", method, "one of 'auto', 'operator', 'direct'")
-        return out
-
     def add_sensor_noise(self, clean: torch.Tensor, generator: torch.Generator | None = None,
                          sigma: torch.Tensor | None = None, noise: torch.Tensor | None = None) -> torch.Tensor:
         """Sensor noise (zero-mean, after integration) and optional ADC quantisation.
 
         ``sigma``: the Gaussian noise's per-example standard deviation where the caller has it
         (:meth:`noise_sigma` of the same clean embeddings); ``noise``: its standard-normal draws where the
-        caller drew them (given only with ``sigma``); see :func:`~optoenc.encoders.imaging.add_noise`.
+        caller drew them (given only with ``sigma``); see :func:`~optoenc.encoders.noise.add_noise`.
         """
         s = self.sensor
-        out = imaging.add_noise(clean, s.snr_db, s.noise, s.photons, s.read_noise, generator, sigma, noise,
-                                level_gradient=s.noise_level_gradient)
+        if s.exposure == "fixed":  # photo-electrons at a fixed exposure (optoenc.encoders.noise.photon_noise)
+            out, clipped = photon_noise(clean, s.photons, s.read_noise, s.full_well, s.adc_bits,
+                                        shot=s.noise == "poisson", generator=generator) if s.noise == "poisson" else photon_noise(
+                clean, s.photons, 0.0, s.full_well, s.adc_bits, shot=False)
+            #: Fraction of the last noisy batch's pixels clipped at the full well (a detached 0-d tensor).
+            self.clipped_fraction = clipped
+            count = getattr(self, "_clip_count", None)
+            n = clean.numel()
+            self._clip_count = (clipped * n, n) if count is None else (count[0] + clipped * n, count[1] + n)
+            return out
+        out = add_noise(clean, s.snr_db, s.noise, s.photons, s.read_noise, generator, sigma, noise)
         if s.adc_bits is not None:
-            out = imaging.quantize(out, s.adc_bits)
+            out = quantize(out, s.adc_bits)
         return out
+
+    def saturated_fraction(self) -> float | None:
+        """Fraction of all pixels read with noise under ``sensor.exposure=fixed`` since the encoder was built that
+        were clipped at the full well (``sensor.full_well``); None where none were read so."""
+        count = getattr(self, "_clip_count", None)
+        return None if count is None or count[1] == 0 else float(count[0]) / count[1]
 
     def noise_sigma(self, clean: torch.Tensor) -> torch.Tensor | None:
         """The per-example standard deviation :meth:`add_sensor_noise` gives ``clean`` (None: not Gaussian noise).
@@ -632,10 +477,11 @@ class OpticalEncoder(Documented, nn.Module, abc.ABC):
         s = self.sensor
         if s.noise != "gaussian" or s.snr_db is None or type(self).add_sensor_noise is not OpticalEncoder.add_sensor_noise:
             return None
-        return imaging.snr_sigma(clean.detach(), s.snr_db)
+        return snr_sigma(clean.detach(), s.snr_db)
 
     def forward(self, scene: torch.Tensor, height: float | None = None, noise: bool = True) -> torch.Tensor:
-        """Sensor embedding of ``(B, C, h, w)`` scenes, noise included unless ``noise=False``."""
+        """Sensor embeddings ``(B, channels, a, b)`` of ``(B, C, h, w)`` scenes: :meth:`measure`, then
+        :meth:`add_sensor_noise` unless ``noise=False`` (drawn from the global generator)."""
         clean = self.measure(scene, height)
         return self.add_sensor_noise(clean) if noise else clean
 

@@ -6,7 +6,7 @@ plus explicit knobs); :meth:`FidelityConfig.resolved` turns it into
 ``self.knobs.<knob>``. :data:`FIDELITY_PRESETS` is the one table of the
 presets' values; an encoder's measured per-preset values are its
 ``fidelity_presets``. ``auto`` (the cheapest measured setting within a
-tolerance) is resolved per run by :mod:`optoenc.fidelity.auto`.
+tolerance) is resolved per run by :mod:`optoenc.bench.auto`.
 """
 
 from __future__ import annotations
@@ -225,11 +225,11 @@ class FidelityConfig(Settings):
 
         Raises:
             ConfigError: ``preset`` is ``auto`` (resolved per run by
-                :func:`optoenc.fidelity.auto.resolve`).
+                :func:`optoenc.bench.auto.resolve`).
         """
         if self.preset == "auto":
             raise ConfigError(
-                "fidelity.preset", "auto", "is resolved for a run by `optoenc fit` (optoenc.fidelity.auto.resolve); "
+                "fidelity.preset", "auto", "is resolved for a run by `optoenc fit` (optoenc.bench.auto.resolve); "
                 "an encoder needs a named preset or explicit knobs"
             )
         out = dict(FIDELITY_PRESETS[self.preset])

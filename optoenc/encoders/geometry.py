@@ -2,7 +2,7 @@
 
 These settings groups describe what every optical encoder images (the
 scene) and what it images onto (the sensor and its embedding); how finely it
-is simulated (fidelity) is :mod:`optoenc.fidelity.knobs`, whose names this
+is simulated (fidelity) is :mod:`optoenc.encoders.fidelity`, whose names this
 module also exports as before. An encoder's own ``Config`` holds only what
 is specific to it (its distance ``d2``, its mask, ...).
 """
@@ -15,10 +15,10 @@ from typing import Optional
 
 from .. import devices
 from ..errors import ConfigError
-from ..fidelity.knobs import FIDELITY_PRESETS, KNOB_NAMES, FidelityConfig, Knobs, parse_padding
+from .fidelity import FIDELITY_PRESETS, KNOB_NAMES, FidelityConfig, Knobs, parse_padding
 from ..settings import Settings, setting
 
-#: The fidelity names are :mod:`optoenc.fidelity.knobs`'s, exported here too (their old home).
+#: The fidelity names are :mod:`optoenc.encoders.fidelity`'s, exported here too (their old home).
 __all__ = ["SceneConfig", "SensorConfig", "Geometry", "FidelityConfig", "FIDELITY_PRESETS", "KNOB_NAMES", "Knobs", "parse_padding"]
 
 
@@ -43,17 +43,44 @@ class SensorConfig(Settings):
         "centre bilinearly without antialiasing (the paper's published pipeline; fine structure aliases)",
         choices=("box", "point"),
     )
-    color: str = setting("gray", "sensor colour: 'gray' (one channel) or 'rgb'", choices=("gray", "rgb"))
-    noise: str = setting("gaussian", "noise model", choices=("gaussian", "poisson", "none"))
-    snr_db: Optional[float] = setting(devices.SNR_DB, "SNR of the gaussian noise (null: no noise)", unit="dB", ge=-100, le=300)
-    noise_level_gradient: bool = setting(
-        False, "gaussian model: the noise level (set by the example's own variance through snr_db) passes gradient "
-        "to the encoder, the exact derivative of the noisy reading; false: the level is a constant in the backward "
-        "pass. Only learned encoders' training differs; the values, and fixed encoders, are the same either way",
+    color: str = setting(
+        "gray",
+        "sensor colour: 'gray' (one channel), 'rgb' (three ideal colour planes) or 'bayer' (an RGGB mosaic at the "
+        "embedding's pixel pitch: one plane, each pixel behind one colour filter; docs/optics.md)",
+        choices=("gray", "rgb", "bayer"),
     )
-    photons: float = setting(1e4, "photons at the brightest pixel (poisson model)", gt=0)
+    exposure: str = setting(
+        "scene",
+        "'scene': the signal level is set per scene (the noise is relative to each example's own signal); "
+        "'fixed': a fixed exposure, a scene of unit radiance through a fully open aperture gives `photons` "
+        "photo-electrons at its brightest pixel and an element that blocks light gives proportionally fewer",
+        choices=("scene", "fixed"),
+    )
+    noise: str = setting("gaussian", "noise model (exposure=fixed: poisson or none)", choices=("gaussian", "poisson", "none"))
+    snr_db: Optional[float] = setting(devices.SNR_DB, "SNR of the gaussian noise (null: no noise)", unit="dB", ge=-100, le=300)
+    photons: float = setting(
+        1e4, "photo-electrons at the brightest pixel: of each scene (poisson model, exposure=scene), or of a "
+        "unit-radiance scene through a fully open aperture (exposure=fixed)", gt=0,
+    )
     read_noise: float = setting(0.0, "read noise (poisson model)", unit="e-", ge=0)
-    adc_bits: Optional[int] = setting(None, "ADC bit depth (null: no quantisation)", ge=1, le=32)
+    full_well: Optional[float] = setting(
+        None, "full-well capacity, exposure=fixed: readings are clipped there and the clipped fraction counted "
+        "(null: no saturation)", unit="e-", gt=0,
+    )
+    adc_bits: Optional[int] = setting(
+        None, "ADC bit depth (null: no quantisation); full scale: each example's maximum (exposure=scene), "
+        "full_well or else photons (exposure=fixed)", ge=1, le=32,
+    )
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.exposure == "fixed" and self.noise == "gaussian":
+            raise ConfigError(
+                "sensor.noise", self.noise,
+                "under sensor.exposure=fixed the noise is photon counting: 'poisson' (shot and read noise) or 'none'",
+            )
+        if self.full_well is not None and self.exposure != "fixed":
+            raise ConfigError("sensor.full_well", self.full_well, "applies under sensor.exposure=fixed only (null otherwise)")
 
     @property
     def size(self) -> tuple[float, float]:

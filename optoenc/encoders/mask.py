@@ -8,7 +8,8 @@ B wavelengths in one batched FFT, integrated over each grid pixel; a mask of
 cells on a lattice (:attr:`MaskEncoder.separable`, the LCDs) may instead be
 propagated axis by axis (:meth:`MaskEncoder.separable_psf`). A new
 amplitude mask is a subclass with :meth:`MaskEncoder.mask`, a phase mask one
-with :meth:`MaskEncoder.phase`; see docs/plugin-authoring.md.
+with :meth:`MaskEncoder.phase`; see docs/plugin-authoring.md. :meth:`MaskEncoder.field_mask`
+is the transmittance on the field grid for every mask encoder.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from ..optics import axis_operator, check_sampling, cross_phase, intensity_psf, 
 from ..optics.psf import check_energy
 from ..optics.separable import real_operators, separable_intensity
 from .base import OpticalEncoder
+from .imaging import psf_power
 
 __all__ = ["MaskEncoder", "AUTO_CHUNK_SAMPLES", "SEPARABLE_MAX_PHASE"]
 
@@ -73,7 +75,12 @@ class MaskEncoder(OpticalEncoder):
 
     # ----------------------------------------------------------------- what a subclass implements
     def mask(self) -> torch.Tensor:
-        """The transmittance on the field grid: what is propagated, and what the mask pictures show.
+        """The element's transmittance, as its pictures show it: on the field grid, what is propagated.
+
+        An element displayed on a lattice of its own may return that lattice
+        instead, declaring its sample spacing as ``mask_spacing`` and giving
+        the field grid's transmittance by :meth:`field_mask` (the LCD encoders:
+        their 384 x 160 sub-pixels; :meth:`field_mask` is always the field grid).
 
         Returns:
             ``(H, W)`` (the same at every wavelength) or ``(3, H, W)`` (at the
@@ -94,9 +101,35 @@ class MaskEncoder(OpticalEncoder):
         y, x = self.field_coordinates()
         return torch.ones(len(y), len(x), dtype=y.dtype, device=y.device)
 
+    def field_mask(self) -> torch.Tensor:
+        """The transmittance on the field grid that :meth:`compute_psf` propagates (shapes as :meth:`mask`).
+
+        Default: :meth:`mask`. A subclass whose :meth:`mask` is on a lattice of its own overrides it.
+        """
+        return self.mask()
+
     def compute_psf(self) -> torch.Tensor:
-        """The propagated PSF of :meth:`mask` at distance ``self.d2`` (see :meth:`propagated_psf`)."""
-        return self.propagated_psf(self.mask(), self.d2)
+        """The propagated PSF of :meth:`field_mask` at distance ``self.d2`` (see :meth:`propagated_psf`)."""
+        return self.propagated_psf(self.field_mask(), self.d2)
+
+    def open_power(self) -> float:
+        """The weighted power of :meth:`propagated_psf` of a fully transmissive window (the field grid): the
+        light a fully open aperture of the same size brings to the sensor (computed once per geometry).
+
+        A learned ``d2`` is read to 4 significant digits, so that it is not recomputed at every optimiser step:
+        the open window's share of light on the sensor changes little with it (the LCD's, measured: by 2e-5 of
+        itself for a 0.1 % longer d2).
+        """
+        d2 = float(f"{float(self.d2):.4g}")
+        key = (self._wavelengths(), self.scene_config.distance, d2, self.field_grid, self.field_spacing,
+               self.knobs.padding, self.optics_dtype)
+        cached = getattr(self, "_open_power", None)
+        if cached is None or cached[0] != key:
+            with torch.no_grad():
+                y, x = self.field_coordinates()
+                ones = torch.ones(len(y), len(x), dtype=y.dtype, device=y.device)
+                cached = self._open_power = (key, float(psf_power(self.propagated_psf(ones, d2))))
+        return cached[1]
 
     # ----------------------------------------------------------------- the field grid
     def field_coordinates(self) -> tuple[torch.Tensor, torch.Tensor]:

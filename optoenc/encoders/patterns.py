@@ -8,7 +8,7 @@ all learned jointly with one decoder that is *not told* which pattern made
 an embedding:
 
 * :attr:`active_pattern` is the pattern that :meth:`psf`, :meth:`operator`,
-  :meth:`mask` and the subclass's ``weights()`` refer to (0 unless
+  :meth:`mask` and the subclass's ``displayed_amplitudes()`` refer to (0 unless
   :meth:`showing` / :meth:`select_pattern` changed it); each pattern keeps
   its own PSF and operator cache, so switching costs nothing once computed.
 * :meth:`measure` of a batch draws one pattern index per example (uniform,
@@ -43,7 +43,7 @@ class PatternSet:
     """Mixin for a :class:`~optoenc.encoders.mask.MaskEncoder` with :attr:`patterns` patterns (see module doc).
 
     The subclass sets ``self.patterns`` (``K >= 1``) before any PSF is
-    computed and reads :attr:`active_pattern` in its ``weights()``.
+    computed and reads :attr:`active_pattern` in its ``displayed_amplitudes()``.
     """
 
     patterns: int = 1
@@ -61,12 +61,8 @@ class PatternSet:
         if k == self.active_pattern:
             return
         stash = self.__dict__.setdefault("_stash", {})
-        stash[self.active_pattern] = (self._psf_cache, self._op_cache.get("op"))
-        self._psf_cache, op = stash.pop(k, (None, None))
-        if op is None:
-            self._op_cache.pop("op", None)
-        else:
-            self._op_cache["op"] = op
+        stash[self.active_pattern] = (self._psf_cache, self._operators.whole)
+        self._psf_cache, self._operators.whole = stash.pop(k, (None, None))
         self._active = k
 
     @contextmanager

@@ -30,7 +30,20 @@ from .base import EncoderConfig
 from .mask import MaskEncoder
 from .patterns import PatternSet
 
-__all__ = ["SLMConfig", "FixedSLM", "LearnedSLMConfig", "LearnedSLM", "panel_image"]
+__all__ = ["SLMConfig", "FixedSLM", "LearnedSLMConfig", "LearnedSLM", "panel_image", "start_logits", "EDGE_LOGIT"]
+
+#: The logit a pattern value of exactly 1 starts at (-EDGE_LOGIT for 0): that of 1 - eps (float64's machine epsilon),
+#: the nearest amplitude to the edge whose logit is finite in both directions. sigmoid(-36.04) = 2.2e-16.
+EDGE_LOGIT = float(torch.logit(torch.tensor(1 - torch.finfo(torch.float64).eps, dtype=torch.float64)))
+
+
+def start_logits(pattern: torch.Tensor) -> torch.Tensor:
+    """float64 logits whose sigmoid is ``pattern`` (values in ``[0, 1]``) to float64 rounding (1.1e-16).
+
+    Exact 0 and 1, which no finite logit reaches, and values within float64's epsilon of them become
+    -:data:`EDGE_LOGIT` and :data:`EDGE_LOGIT` (an amplitude within 2.2e-16 of the value)."""
+    p = pattern.to(torch.float64)
+    return torch.logit(p).clamp(-EDGE_LOGIT, EDGE_LOGIT)
 
 
 @dataclass
@@ -136,8 +149,14 @@ class _SLMBase(MaskEncoder):
         lv = self._levels.to(w.device, w.dtype)
         return w + (torch.round(w * lv) / lv - w).detach()
 
-    def weights(self) -> torch.Tensor:
-        """``(rows, cols)`` amplitudes of the active block, in ``[0, 1]``, as displayed."""
+    def displayed_amplitudes(self) -> torch.Tensor:
+        """``(rows, cols)`` amplitudes of the active block's sub-pixels, in ``[0, 1]``, as the panel displays them.
+
+        The one accessor whatever the encoder holds: a fixed pattern, a learned mask's ``logits``
+        (``parameterization='sigmoid'``) or ``amplitudes`` (``'projected'``), the pattern shown now
+        (:attr:`active_pattern`) of several, rounded to the display levels (``quantize``, straight-through
+        gradient). Differentiable with respect to a learned mask's parameter; float64.
+        """
         raise NotImplementedError
 
     def d2_tensor(self) -> torch.Tensor | float:
@@ -149,19 +168,26 @@ class _SLMBase(MaskEncoder):
     separable = True
 
     def mask(self) -> torch.Tensor:
-        """``(384, 160)`` sub-pixel amplitude transmittances (0 outside the active block), detached."""
-        return slm_panel.full_panel(self.weights().detach(), self.block)
+        """The panel as displayed: ``(384, 160)`` sub-pixel amplitude transmittances (0 outside the active block),
+        detached, one sample per sub-pixel (:attr:`mask_spacing`). On the field grid: :meth:`field_mask`."""
+        return slm_panel.full_panel(self.displayed_amplitudes().detach(), self.block)
+
+    def field_mask(self) -> torch.Tensor:
+        """``(3, H, W)`` amplitude transmittance on the field grid per R, G, B wavelength: the open cells of the
+        displayed sub-pixels with exact fractional areas (:func:`~optoenc.encoders.slm_panel.rasterise`), in
+        ``self.optics_dtype``; what the 2-D propagation propagates. Differentiable."""
+        w = self.displayed_amplitudes().to(self.optics_dtype)
+        return slm_panel.rasterise(w, self.block, self.field_grid, self.field_spacing)
 
     def cell_factors(self) -> tuple[torch.Tensor, torch.Tensor]:
         return slm_panel.panel_factors(self.block, self.field_grid, self.field_spacing)
 
     def compute_psf(self) -> torch.Tensor:
-        w = self.weights().to(self.optics_dtype)
         d2 = self.d2_tensor()
         if self.separable_applies(d2):  # the sub-pixels are cells on a lattice: axis by axis
+            w = self.displayed_amplitudes().to(self.optics_dtype)
             return self.separable_psf(slm_panel.colour_values(w, self.block), d2)
-        m = slm_panel.rasterise(w, self.block, self.field_grid, self.field_spacing)
-        return self.propagated_psf(m, d2)
+        return self.propagated_psf(self.field_mask(), d2)
 
 
 class FixedSLM(_SLMBase):
@@ -176,7 +202,7 @@ class FixedSLM(_SLMBase):
         super().__init__(config, **kw)
         self.register_buffer("pattern", self.initial_pattern(), persistent=False)
 
-    def weights(self) -> torch.Tensor:
+    def displayed_amplitudes(self) -> torch.Tensor:
         return self._quantize(self.pattern)
 
 
@@ -200,6 +226,14 @@ class LearnedSLM(PatternSet, _SLMBase):
     on the parameter versions). With ``patterns = K > 1`` the logits are
     ``(K, rows, cols)``, pattern 0 being the ``K = 1`` pattern, and each
     capture displays one of them (:class:`~optoenc.encoders.patterns.PatternSet`).
+
+    The start is :class:`FixedSLM`'s pattern at the same ``seed`` (or ``pattern_path``):
+    ``displayed_amplitudes()`` equals it to float64 rounding (1.1e-16; bit for bit once
+    rounded to the float32 optics), so both encoders' first embeddings are the same.
+    A value of exactly 0 or 1, which no finite logit reaches, starts at
+    :data:`EDGE_LOGIT` (amplitude within float64's epsilon, 2.2e-16, of it);
+    ``'projected'`` starts at, and can stay at, exact 0 and 1.
+    Read the amplitudes with :meth:`displayed_amplitudes` whatever the parameterisation.
     """
 
     name = "learned_slm"
@@ -214,15 +248,14 @@ class LearnedSLM(PatternSet, _SLMBase):
         if self.projected:  # the amplitudes themselves, float64, kept in [0, 1] by constrain_()
             self.amplitudes = nn.Parameter(self.initial_pattern(self.patterns))
         else:
-            p = self.initial_pattern(self.patterns).clamp(0.01, 0.99)
             # float64 logits: the gradient w (1 - w) stays non-zero up to |logit| ~ 36 (float32: ~16).
-            self.logits = nn.Parameter(torch.log(p / (1 - p)))
+            self.logits = nn.Parameter(start_logits(self.initial_pattern(self.patterns)))
         if self.config.learn_d2:
             self.log_d2_scale = nn.Parameter(torch.zeros((), dtype=torch.float64))
         else:
             self.log_d2_scale = None
 
-    def weights(self) -> torch.Tensor:
+    def displayed_amplitudes(self) -> torch.Tensor:
         if self.projected:
             return self._quantize(self.amplitudes if self.patterns == 1 else self.amplitudes[self.active_pattern])
         logits = self.logits if self.patterns == 1 else self.logits[self.active_pattern]

@@ -7,11 +7,10 @@
   list of plugin kinds;
 * :mod:`optoenc.plugins.hookspecs`: the hook specifications and ``hookimpl``;
 * :mod:`optoenc.plugins.builtins`: optoenc's own encoders, decoders,
-  augmentations and datasets, registered through the same hooks;
-* :mod:`optoenc.plugins.listing`: ``optoenc encoders / plugins ...`` listings
-  and the settings reference;
-* :mod:`optoenc.plugins.docs`: ``python -m optoenc.plugins.docs`` writes
-  docs/settings.md.
+  augmentations and datasets, registered through the same hooks.
+
+The listings of the registries (``optoenc encoders``, the settings reference)
+are the command line's: :mod:`optoenc.cli.catalogue`.
 
 This package re-exports the host's public names, so ``optoenc.plugins``
 reads as it did when it was one module. The host's state lives in

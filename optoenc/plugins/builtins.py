@@ -35,6 +35,10 @@ def optoenc_register_augmentations(registry):
 
 @hookimpl
 def optoenc_register_datasets(registry):
+    from ..datasets.celeba import CelebA
+    from ..datasets.cifar10 import CIFAR10
+    from ..datasets.image_folder import ImageFolder
     from ..datasets.mnist import MNIST
 
-    registry.add(MNIST)
+    for cls in (MNIST, ImageFolder, CIFAR10, CelebA):
+        registry.add(cls)

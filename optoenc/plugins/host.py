@@ -28,8 +28,6 @@ __all__ = ["PluginInfo", "PluginHost", "get_host", "get_registry", "register_plu
 STRICT_ENV = "OPTOENC_STRICT_PLUGINS"
 ENTRY_POINT_GROUP = "optoenc"
 BUILTINS = "optoenc.plugins.builtins"
-#: Entry-point values that name the built-ins (the old module path, in installs made before the move).
-_BUILTIN_VALUES = (BUILTINS, "optoenc.builtins")
 
 
 @dataclass
@@ -60,7 +58,7 @@ class PluginHost:
         self.add(importlib.import_module(BUILTINS), name="builtins", distribution="optoenc")
         if entry_points:
             for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
-                if ep.value in _BUILTIN_VALUES:
+                if ep.value == BUILTINS:  # loaded above
                     continue
                 dist = ep.dist.name if ep.dist is not None else ""
                 version = ep.dist.version if ep.dist is not None else ""

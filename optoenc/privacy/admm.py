@@ -26,7 +26,8 @@ from __future__ import annotations
 import torch
 
 from .settings import ADMMConfig
-from .operators import DTYPE, LinearOperator
+from ..encoders.operator import SceneOperator
+from .operators import DTYPE
 from .tv import differences, differences_adjoint, laplacian
 
 __all__ = ["ADMMConfig", "admm", "objective"]
@@ -36,7 +37,7 @@ def _soft(v: torch.Tensor, t: float) -> torch.Tensor:
     return torch.sign(v) * (v.abs() - t).clamp_min(0)
 
 
-def objective(op: LinearOperator, x: torch.Tensor, y: torch.Tensor, tau: float) -> torch.Tensor:
+def objective(op: SceneOperator, x: torch.Tensor, y: torch.Tensor, tau: float) -> torch.Tensor:
     """Per-example value of the (unit-norm scaled) objective at ``x`` (``inf`` where ``x`` has a negative entry)."""
     s = op.norm()
     r = op.forward(x) / s - y.to(DTYPE) / s
@@ -46,7 +47,7 @@ def objective(op: LinearOperator, x: torch.Tensor, y: torch.Tensor, tau: float) 
 
 
 @torch.no_grad()
-def admm(op: LinearOperator, y: torch.Tensor, config: ADMMConfig | None = None) -> torch.Tensor:
+def admm(op: SceneOperator, y: torch.Tensor, config: ADMMConfig | None = None) -> torch.Tensor:
     """Reconstruct ``(B, S, h, w)`` scenes from ``(B, C, a, b)`` embeddings ``y`` (see the module docstring)."""
     cfg = config or ADMMConfig()
     s = op.norm()

@@ -30,8 +30,9 @@ from ..training.rundir import RUN_FILES, atomic_write_text
 __all__ = ["COLUMNS", "cell_settings", "defence_rows", "write_defence", "markdown"]
 
 COLUMNS = (
-    "encoder", "embedding", "patterns", "adversary_weight", "seed", "epochs", "test_acc", "attack", "n_pairs", "psnr", "ssim",
-    "readability", "reid_top1", "reid_top1_se", "psnr_drop", "ssim_drop", "reid_change", "readability_change",
+    "encoder", "embedding", "patterns", "adversary_weight", "seed", "epochs", "test_acc", "threat_model", "attack", "n_pairs",
+    "max_epochs", "epochs_run", "val_loss", "attack_seeds", "psnr", "ssim", "readability", "readability_ci_low",
+    "readability_ci_high", "reid_top1", "reid_top1_se", "reid_ci_low", "reid_ci_high", "psnr_drop", "ssim_drop", "reid_change", "readability_change",
     "acc_change", "count", "run",
 )
 
@@ -101,6 +102,13 @@ def write_defence(rows: Sequence[dict], out_dir: str | Path) -> list[Path]:
             atomic_write_text(out_dir / "defence.md", markdown(rows))]
 
 
+def _reid(r: dict) -> str:
+    """Re-identification in percent with its Wilson 95 % interval (``+-`` its standard error in a table without)."""
+    if r.get("reid_ci_low") not in ("", None):
+        return f"{_pct(r['reid_top1'])} [{_pct(r['reid_ci_low'])}, {_pct(r['reid_ci_high'])}]"
+    return f"{_pct(r['reid_top1'])} +- {_pct(r['reid_top1_se'])}"
+
+
 def _pct(v: Any, signed: bool = False) -> str:
     if v in ("", None):
         return "-"
@@ -116,9 +124,10 @@ def markdown(rows: Sequence[dict]) -> str:
         if r["attack"] == "mean_scene":
             continue
         att = r["attack"] + (f" (N={int(float(r['n_pairs']))})" if r.get("n_pairs") not in ("", None) else "")
+        reid = _reid(r)
         lines.append(
             f"| {r['embedding']} | {r['patterns']} | {r['adversary_weight']:g} | {r.get('seed', 0)} | {_pct(r['test_acc'])} | {att} "
-            f"| {float(r['psnr']):.1f} | {float(r['ssim']):.2f} | {_pct(r['reid_top1'])} +- {_pct(r['reid_top1_se'])} "
+            f"| {float(r['psnr']):.1f} | {float(r['ssim']):.2f} | {reid} "
             f"| {_pct(r['readability'])} | {_pct(r.get('psnr_drop'), True)} | {_pct(r.get('ssim_drop'), True)} "
             f"| {_pct(r.get('reid_change'), True)} | {_pct(r.get('acc_change'), True)} |"
         )

@@ -19,23 +19,31 @@ from ..errors import ConfigError
 from .settings import PrivacyConfig
 from . import metrics
 from .admm import ADMMConfig, admm
-from .attacks import ATTACKS, LearnedConfig, PLAINTEXT_RIDGE, estimate_operator, train_inverter
+from .attacks import ATTACKS, LEARNED, THREAT_MODEL, LearnedConfig, PLAINTEXT_RIDGE, estimate_operator, train_inverter
 from . import patterns
 from .reader import reader
+from .stats import wilson
 from .tikhonov import TikhonovConfig, pseudo_inverse
 
-__all__ = ["PrivacyConfig", "Result", "evaluate", "dataset_token"]
+__all__ = ["PrivacyConfig", "Result", "Target", "evaluate", "target", "learned_attack", "dataset_token", "MULTI_PATTERN"]
+
+#: Attacks on a camera that shows several patterns -> the attack each equals on a single-pattern camera
+#: (where it is not run: its row would repeat that attack's).
+MULTI_PATTERN = {"admm_search": "admm", "learned_one": "learned"}
 
 
 @dataclass
 class Result:
-    """Rows (one per attack, plaintext once per N), and example arrays for pictures."""
+    """Rows (one per attack, plaintext once per N; :func:`evaluate` names the columns), example arrays for
+    pictures, and notes on attacks not run."""
 
     rows: list[dict[str, Any]]
     scenes: torch.Tensor
     labels: torch.Tensor
     embeddings: torch.Tensor
     examples: dict[str, torch.Tensor] = field(default_factory=dict)
+    #: One line per requested attack that does not apply to this camera (why it has no row).
+    notes: list[str] = field(default_factory=list)
 
 
 def dataset_token(splits) -> str:
@@ -52,6 +60,123 @@ def _noise(encoder) -> Callable[[torch.Tensor, torch.Generator], torch.Tensor]:
     return lambda clean, g: encoder.add_sensor_noise(clean.float(), generator=g)
 
 
+def _generator(seed: int, k: int) -> torch.Generator:
+    return torch.Generator().manual_seed(seed * 1009 + k)
+
+
+#: Scenes captured at once for a learned attacker's pairs (float64 captures, kept as float32).
+_CAPTURE_CHUNK = 8192
+
+
+@dataclass
+class Target:
+    """The probes under attack and how a reconstruction of them is scored (:func:`target`).
+
+    Attributes:
+        x: ``(n, S, h, w)`` the probe scenes (float64); ``labels``: their classes.
+        y: ``(n, C, a, b)`` their noisy embeddings; ``shown``: the pattern of each capture.
+        ops: one frozen operator per displayed pattern.
+        pool: the test split's scenes (the re-identification galleries index it); ``gallery``: ``(n, size)``.
+    """
+
+    encoder: Any
+    x: torch.Tensor
+    labels: torch.Tensor
+    y: torch.Tensor
+    shown: torch.Tensor
+    ops: list
+    pool: torch.Tensor
+    gallery: torch.Tensor
+    read: Any
+    config: PrivacyConfig
+
+    def generator(self, k: int) -> torch.Generator:
+        """The ``k``-th seeded stream of this measurement (noise, patterns, pairs)."""
+        return _generator(self.config.seed, k)
+
+    @property
+    def noise(self) -> Callable[[torch.Tensor, torch.Generator], torch.Tensor]:
+        return _noise(self.encoder)
+
+    def measure(self, name: str, recons: torch.Tensor | list[torch.Tensor], **extra) -> dict[str, Any]:
+        """One table row for reconstructions of the probes (a list: one per attacker seed, scored per probe and
+        averaged over the seeds).
+
+        ``psnr``/``ssim``: mean over probes, ``_std`` their spread over probes; ``readability``/``reid_top1``:
+        rates, ``_se`` their binomial standard error and ``readability_ci_low/high``, ``reid_ci_low/high`` the
+        Wilson 95 % interval on ``count`` probes; with several seeds ``reid_seeds``, each seed's rate.
+        """
+        recons = [r.float().clamp(0, 1) for r in (recons if isinstance(recons, (list, tuple)) else [recons])]
+        per: dict[str, list[torch.Tensor]] = {"psnr": [], "ssim": [], "readability": [], "reid_top1": []}
+        for r in recons:
+            with torch.no_grad():
+                per["readability"].append((self.read(r).argmax(1) == self.labels).float())
+            per["psnr"].append(metrics.psnr(r, self.x))
+            per["ssim"].append(metrics.ssim(r, self.x))
+            per["reid_top1"].append(metrics.reid_top1(r, self.pool, self.gallery))
+        n = len(self.x)
+        row = {"attack": name, "threat_model": THREAT_MODEL.get(name, ""), **extra}
+        for key, binary in (("psnr", False), ("ssim", False), ("readability", True), ("reid_top1", True)):
+            m, s = metrics.summarize(torch.stack(per[key]).mean(0), binary)
+            row[key], row[f"{key}_{'se' if binary else 'std'}"] = m, s
+            if binary:
+                short = "reid" if key == "reid_top1" else key
+                row[f"{short}_ci_low"], row[f"{short}_ci_high"] = wilson(m, n) if m == m else (float("nan"),) * 2
+        if len(recons) > 1:
+            row["reid_seeds"] = ";".join(f"{float(v.mean()):.4g}" for v in per["reid_top1"])
+        row["count"] = n
+        return row
+
+
+def target(encoder, splits, config: Optional[PrivacyConfig] = None, cache_root: str | None = None,
+           progress: Callable[[str], None] | None = None) -> Target:
+    """The first ``config.count`` test scenes as probes: their noisy embeddings, galleries and the reader."""
+    cfg = config or PrivacyConfig()
+    say = progress or (lambda _msg: None)
+    x_pool, y_pool = splits.test
+    n = min(cfg.count, len(x_pool))
+    x, labels = x_pool[:n].double(), y_pool[:n]
+    # One operator per displayed pattern (one for every single-pattern encoder), and the pattern of
+    # each capture (all 0 then): see optoenc.privacy.patterns for the threat models.
+    ops = patterns.operators(encoder, tuple(x.shape[-2:]), scene_channels=x.shape[1])
+    shown = patterns.draw(n, len(ops), _generator(cfg.seed, 3))
+    y = _noise(encoder)(patterns.capture(ops, x, shown), _generator(cfg.seed, 1))
+    gallery = metrics.reid_gallery(labels, y_pool, torch.arange(n), cfg.gallery, cfg.seed)
+    say("reader")
+    read = reader(splits, dataset_token(splits), cache_root, seed=cfg.seed)
+    return Target(encoder, x, labels, y, shown, ops, x_pool, gallery, read, cfg)
+
+
+def learned_attack(tgt: Target, name: str, train_scenes: torch.Tensor, learned_config: Optional[LearnedConfig] = None,
+                   seeds: int | None = None) -> tuple[list[torch.Tensor], dict[str, Any]]:
+    """Train the learned attacker ``name`` (``learned``, ``learned_conv``, ``learned_one``) with each of ``seeds``
+    seeds (default ``config.attack_seeds``: ``seed, seed + 1, ...``) and reconstruct the probes.
+
+    Returns:
+        ``(one reconstruction per seed, the row's budget columns)``: ``n_pairs`` (pairs, validation included),
+        ``val_pairs``, ``max_epochs``, ``epochs_run`` (per seed, ``;``-joined), ``val_loss`` (mean over seeds of
+        the kept state's validation loss), ``attack_seeds``.
+    """
+    lc = learned_config or LearnedConfig()
+    k = min(lc.pairs, len(train_scenes))
+    scenes = train_scenes[:k]
+    # learned, learned_conv: pairs captured with the patterns the camera drew; learned_one: through pattern 0 only.
+    seen = patterns.draw(k, len(tgt.ops) if name != "learned_one" else 1, tgt.generator(4))
+    clean = torch.cat([patterns.capture(tgt.ops, scenes[i : i + _CAPTURE_CHUNK].double(), seen[i : i + _CAPTURE_CHUNK]).float()
+                       for i in range(0, k, _CAPTURE_CHUNK)])
+    recons, reports = [], []
+    for i in range(tgt.config.attack_seeds if seeds is None else seeds):
+        model, rep = train_inverter(clean, scenes, tgt.noise, lc, seed=tgt.config.seed + i, kind=LEARNED[name])
+        with torch.no_grad():
+            dev = next(model.parameters()).device
+            recons.append(torch.cat([model(part.to(dev)).cpu() for part in tgt.y.split(4096)]))
+        reports.append(rep)
+    budget = {"n_pairs": k, "val_pairs": reports[0].val_pairs, "max_epochs": lc.epochs,
+              "epochs_run": ";".join(str(r.epochs_run) for r in reports),
+              "val_loss": sum(r.val_loss for r in reports) / len(reports), "attack_seeds": len(reports)}
+    return recons, budget
+
+
 def evaluate(
     encoder,
     splits,
@@ -65,61 +190,41 @@ def evaluate(
 ) -> Result:
     """Attack ``encoder``'s noisy test embeddings with each of ``attacks`` and measure the reconstructions.
 
-    Every row has ``attack``, ``n_pairs`` (plaintext only), ``psnr``/``psnr_std``,
-    ``ssim``/``ssim_std`` (mean and standard deviation over images),
-    ``readability``/``readability_se`` and ``reid_top1``/``reid_se`` (rates
-    and binomial standard errors) and ``count``. A ``mean_scene`` row (the
-    mean training scene for every input: no information) is the floor.
+    Every row has ``attack``, its ``threat_model`` (:data:`~optoenc.privacy.settings.THREAT_MODEL`),
+    ``psnr``/``psnr_std``, ``ssim``/``ssim_std`` (mean and standard deviation over probes),
+    ``readability``/``reid_top1`` (rates) with their binomial standard errors (``_se``) and Wilson 95 %
+    intervals (``readability_ci_low/high``, ``reid_ci_low/high``), and ``count`` (probes). Plaintext rows
+    give their pairs (``n_pairs``); learned rows their budget (:func:`learned_attack`), averaged over
+    ``config.attack_seeds`` attackers. A ``mean_scene`` row (the mean training scene for every input: no
+    information) is the floor.
     """
     cfg = config or PrivacyConfig()
     unknown = sorted(set(attacks) - set(ATTACKS))
     if unknown:
         raise ConfigError("attacks", unknown[0], f"one of {', '.join(ATTACKS)}")
     say = progress or (lambda _msg: None)
-    x_pool, y_pool = splits.test
-    n = min(cfg.count, len(x_pool))
-    x, labels = x_pool[:n].double(), y_pool[:n]
-    scene_shape = tuple(x.shape[-2:])
-    # One operator per displayed pattern (one for every single-pattern encoder), and the pattern of
-    # each capture (all 0 then): see optoenc.privacy.patterns for the threat models.
-    ops = patterns.operators(encoder, scene_shape, scene_channels=x.shape[1])
-    K = len(ops)
-    gen = lambda k: torch.Generator().manual_seed(cfg.seed * 1009 + k)  # noqa: E731
-    noise = _noise(encoder)
-    shown = patterns.draw(n, K, gen(3))
-    y = noise(patterns.capture(ops, x, shown), gen(1))
-    gallery = metrics.reid_gallery(labels, y_pool, torch.arange(n), cfg.gallery, cfg.seed)
-    say("reader")
-    read = reader(splits, dataset_token(splits), cache_root, seed=cfg.seed)
-    rows, examples = [], {}
+    tgt = target(encoder, splits, cfg, cache_root, say)
+    x, y, ops, shown, n, K = tgt.x, tgt.y, tgt.ops, tgt.shown, len(tgt.x), len(tgt.ops)
+    rows, examples, notes = [], {}, []
 
-    def measure(name: str, recon: torch.Tensor, **extra) -> None:
-        recon = recon.float().clamp(0, 1)
-        with torch.no_grad():
-            readable = (read(recon).argmax(1) == labels).float()
-        row = {"attack": name, **extra}
-        for key, vals, binary in (
-            ("psnr", metrics.psnr(recon, x), False),
-            ("ssim", metrics.ssim(recon, x), False),
-            ("readability", readable, True),
-            ("reid_top1", metrics.reid_top1(recon, x_pool, gallery), True),
-        ):
-            m, s = metrics.summarize(vals, binary)
-            row[key], row[f"{key}_{'se' if binary else 'std'}"] = m, s
-        row["count"] = n
-        rows.append(row)
+    def measure(name: str, recon, **extra) -> None:
+        rows.append(tgt.measure(name, recon, **extra))
         if cfg.examples:
-            examples[name + (f"_n{extra['n_pairs']}" if "n_pairs" in extra else "")] = recon[: cfg.examples]
+            first = recon[0] if isinstance(recon, list) else recon
+            key = name + (f"_n{extra['n_pairs']}" if name == "plaintext" else "")
+            examples[key] = first.float().clamp(0, 1)[: cfg.examples]
 
     xt = splits.train[0]
     measure("mean_scene", xt.double().mean(0, keepdim=True).expand_as(x))
     for name in attacks:
+        if K == 1 and name in MULTI_PATTERN:
+            notes.append(f"{name} not run: {encoder.name} shows one pattern, where it is the same attack as "
+                         f"{MULTI_PATTERN[name]}")
+            continue
         say(name)
         if name == "admm":
             measure(name, patterns.grouped(lambda op, v: admm(op, v, admm_config), ops, y, shown))
         elif name == "admm_search":
-            if K == 1:
-                continue  # one pattern: the same attacker as "admm"
             # All K patterns known, not which one made a capture: ADMM with each, keep the best data fit.
             recs = torch.stack([admm(op, y, admm_config) for op in ops])
             resid = torch.stack([(op.forward(r) - y.to(r.dtype)).flatten(1).norm(dim=1) for op, r in zip(ops, recs)])
@@ -127,21 +232,14 @@ def evaluate(
         elif name == "pinv":
             rcond = (linear_config or TikhonovConfig()).rcond
             measure(name, patterns.grouped(lambda op, v: pseudo_inverse(op, v, rcond), ops, y, shown))
-        elif name in ("learned", "learned_one"):
-            if name == "learned_one" and K == 1:
-                continue  # one pattern: the same attacker as "learned"
-            lc = learned_config or LearnedConfig()
-            scenes = xt[: lc.pairs]
-            # learned: pairs captured with the patterns the camera drew; learned_one: through pattern 0 only.
-            seen = patterns.draw(len(scenes), K if name == "learned" else 1, gen(4))
-            model = train_inverter(patterns.capture(ops, scenes.double(), seen), scenes, noise, lc, seed=cfg.seed)
-            with torch.no_grad():
-                measure(name, model(y))
+        elif name in LEARNED:
+            recons, budget = learned_attack(tgt, name, xt, learned_config)
+            measure(name, recons, **budget)
         elif name == "plaintext":
             for k in cfg.plaintext_n:
                 k = min(int(k), len(xt))
                 known = xt[-k:].double()  # the attacker's pairs: training scenes through the camera, noise included
-                clean = patterns.capture(ops, known, patterns.draw(k, K, gen(5)))
-                est = estimate_operator(known, noise(clean, gen(2)), PLAINTEXT_RIDGE)
+                clean = patterns.capture(ops, known, patterns.draw(k, K, tgt.generator(5)))
+                est = estimate_operator(known, tgt.noise(clean, tgt.generator(2)), PLAINTEXT_RIDGE)
                 measure(name, admm(est, y, admm_config), n_pairs=k)
-    return Result(rows, x[: cfg.examples].float(), labels[: cfg.examples], y[: cfg.examples].float(), examples)
+    return Result(rows, x[: cfg.examples].float(), tgt.labels[: cfg.examples], y[: cfg.examples].float(), examples, notes)

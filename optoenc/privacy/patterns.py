@@ -28,7 +28,8 @@ from typing import Callable
 import torch
 
 from ..encoders.patterns import draw_patterns
-from .operators import LinearOperator, from_encoder
+from ..encoders.operator import SceneOperator
+from .operators import from_encoder
 
 __all__ = ["pattern_count", "operators", "draw", "grouped", "capture"]
 
@@ -38,8 +39,8 @@ def pattern_count(encoder) -> int:
     return int(getattr(encoder, "patterns", 1))
 
 
-def operators(encoder, scene_shape: tuple[int, int], scene_channels: int = 1) -> list[LinearOperator]:
-    """One :class:`LinearOperator` per pattern (one for a single-pattern encoder)."""
+def operators(encoder, scene_shape: tuple[int, int], scene_channels: int = 1) -> list[SceneOperator]:
+    """One frozen :class:`~optoenc.encoders.operator.SceneOperator` per pattern (one for a single-pattern encoder)."""
     K = pattern_count(encoder)
     if K == 1:
         return [from_encoder(encoder, scene_shape, scene_channels=scene_channels)]
@@ -57,7 +58,7 @@ def draw(count: int, patterns: int, generator: torch.Generator) -> torch.Tensor:
     return draw_patterns(count, patterns, generator)
 
 
-def grouped(fn: Callable[[LinearOperator, torch.Tensor], torch.Tensor], ops: list[LinearOperator],
+def grouped(fn: Callable[[SceneOperator, torch.Tensor], torch.Tensor], ops: list[SceneOperator],
             inputs: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
     """``fn(ops[k], inputs[index == k])`` for each pattern ``k`` used, put back in input order."""
     if len(ops) == 1:
@@ -72,6 +73,6 @@ def grouped(fn: Callable[[LinearOperator, torch.Tensor], torch.Tensor], ops: lis
     return out
 
 
-def capture(ops: list[LinearOperator], scenes: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+def capture(ops: list[SceneOperator], scenes: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
     """Noise-free embeddings, scene ``i`` through pattern ``index[i]``."""
     return grouped(lambda op, x: op.forward(x), ops, scenes, index)

@@ -3,8 +3,10 @@
 A run directory is what `optoenc fit` writes (``config.yaml``, ``summary.json``,
 ``checkpoints/``); a sweep directory holds run directories as sub-folders.
 Each run's table goes to ``RUN_DIR/privacy/`` (``privacy.csv``, ``privacy.md``,
-example pictures); a sweep's combined table and ``privacy_utility.png`` go
-to ``SWEEP_DIR/privacy/``. A run whose ``privacy/privacy.csv`` exists is not
+example pictures); a sweep's combined table, the strongest attack per cell
+and threat model (``privacy_best.csv``) and the privacy-utility plots go to
+``SWEEP_DIR/privacy/``. ``privacy.md`` opens with the strongest attack per
+threat model (:func:`best_per_threat_model`), then lists every attack. A run whose ``privacy/privacy.csv`` exists is not
 measured again (delete it to re-measure), so an interrupted sweep resumes.
 """
 
@@ -19,15 +21,28 @@ from typing import Any, Callable, Sequence
 
 
 from ..errors import ConfigError
+from .settings import THREAT_MODEL, THREAT_MODELS
 from ..training.rundir import RUN_FILES, atomic_write_text
 
-__all__ = ["COLUMNS", "load_run", "run_rows", "sweep_cells", "write_table", "read_table", "markdown"]
+__all__ = [
+    "COLUMNS", "load_run", "run_rows", "sweep_cells", "write_table", "read_table", "markdown", "best_per_threat_model",
+    "best_markdown",
+]  # fmt: skip
 
-#: Table columns, in order (docs/results/privacy.csv).
+#: Table columns, in order (docs/results/privacy.csv). ``threat_model``: the attack's
+#: (:data:`~optoenc.privacy.settings.THREAT_MODEL`); ``n_pairs``: the attacker's (scene, embedding) pairs
+#: (plaintext, learned: validation part included); the learned attackers' budget ``val_pairs``,
+#: ``max_epochs``, ``epochs_run`` (per seed), their mean final ``val_loss``, ``attack_seeds`` and each seed's
+#: re-identification ``reid_seeds``; rates with their binomial standard error (``_se``) and Wilson 95 %
+#: interval (``_ci_low``, ``_ci_high``); ``count``: probes.
 COLUMNS = (
-    "encoder", "embedding", "attack", "n_pairs", "psnr", "psnr_std", "ssim", "ssim_std", "readability",
-    "readability_se", "reid_top1", "reid_top1_se", "test_acc", "count", "run",
+    "encoder", "embedding", "threat_model", "attack", "n_pairs", "val_pairs", "max_epochs", "epochs_run", "val_loss",
+    "attack_seeds", "psnr", "psnr_std", "ssim", "ssim_std", "readability", "readability_se", "readability_ci_low",
+    "readability_ci_high", "reid_top1", "reid_top1_se", "reid_ci_low", "reid_ci_high", "reid_seeds", "test_acc",
+    "count", "run",
 )
+#: Columns read back as text.
+_TEXT = ("encoder", "embedding", "threat_model", "attack", "run", "epochs_run", "reid_seeds")
 PRIVACY_DIR = "privacy"
 
 
@@ -35,7 +50,7 @@ def load_run(run_dir: str | Path, overrides: Sequence[str] = (), which: str = "b
     """``(run config, encoder with the trained parameters, summary dict)`` of a run directory."""
     from omegaconf import OmegaConf
 
-    from ..config import build_encoder, compose
+    from ..config import encoder_from_run, compose
     from ..training.run import checkpoint_path, load_encoder
 
     run_dir = Path(run_dir)
@@ -46,7 +61,7 @@ def load_run(run_dir: str | Path, overrides: Sequence[str] = (), which: str = "b
     if checkpoint_path(run_dir, which).is_file():
         encoder = load_encoder(run, run_dir, which)
     else:
-        encoder = build_encoder(run)
+        encoder = encoder_from_run(run)
         if encoder.learnable:
             raise ConfigError("--run", str(run_dir), f"has no {which} checkpoint for its learned encoder")
     summary_path = run_dir / RUN_FILES["summary"]
@@ -90,7 +105,7 @@ def write_table(rows: Sequence[dict], csv_path: str | Path, md_path: str | Path 
         w.writerow({k: _fmt(r.get(k, "")) for k in COLUMNS})
     path = atomic_write_text(csv_path, buf.getvalue())
     if md_path is not None:
-        atomic_write_text(md_path, markdown(rows))
+        atomic_write_text(md_path, _document(rows))
     return path
 
 
@@ -102,28 +117,104 @@ def read_table(path: str | Path) -> list[dict[str, Any]]:
             row: dict[str, Any] = {}
             for k, v in r.items():
                 try:
-                    row[k] = float(v) if k not in ("encoder", "embedding", "attack", "run") and v != "" else v
+                    row[k] = float(v) if k not in _TEXT and v != "" else v
                 except ValueError:
                     row[k] = v
             out.append(row)
     return out
 
 
+def _given(v: Any) -> bool:
+    return v not in ("", None) and v == v
+
+
+def budget_text(r: dict) -> str:
+    """The attacker's budget in words: ``N=1000`` (plaintext), ``54000+6000 pairs, 12;14;11/50 ep, 3 seeds``
+    (learned: training + validation pairs, epochs run per seed / maximum, seeds), ``-`` for the others."""
+    if not _given(r.get("n_pairs")):
+        return "-"
+    n = int(float(r["n_pairs"]))
+    if not _given(r.get("max_epochs")):
+        return f"N={n}"
+    val = int(float(r.get("val_pairs") or 0))
+    runs = str(r.get("epochs_run", "")).removesuffix(".0")
+    seeds = int(float(r.get("attack_seeds") or 1))
+    return f"{n - val}+{val} pairs, {runs}/{int(float(r['max_epochs']))} ep, {seeds} seed{'s' if seeds > 1 else ''}"
+
+
+def _rate(r: dict, key: str, short: str) -> str:
+    """``51.0 [47.9, 54.1]`` (percent, Wilson 95 % interval), or ``51.0 +- 1.6`` for a table without intervals."""
+    m = 100 * float(r[key])
+    if _given(r.get(f"{short}_ci_low")):
+        return f"{m:.1f} [{100 * float(r[f'{short}_ci_low']):.1f}, {100 * float(r[f'{short}_ci_high']):.1f}]"
+    return f"{m:.1f} +- {100 * float(r[f'{key}_se']):.1f}"
+
+
+def _acc(r: dict) -> str:
+    acc = r.get("test_acc", float("nan"))
+    return "-" if not _given(acc) else f"{100 * float(acc):.1f} %"
+
+
+def _threat(r: dict) -> str:
+    return r.get("threat_model") or THREAT_MODEL.get(r["attack"], "") or "-"
+
+
 def markdown(rows: Sequence[dict]) -> str:
-    """A readable markdown table: mean +- spread, rates in percent."""
-    head = "| encoder | embedding | test acc | attack | PSNR [dB] | SSIM | readability | re-id top-1 |"
-    lines = [head, "|---|---|---|---|---|---|---|---|"]
+    """A readable markdown table: PSNR, SSIM mean +- spread over probes; rates in percent with their Wilson 95 %
+    interval; the attacker's threat model and budget."""
+    head = ("| encoder | embedding | test acc | threat model | attack | budget | PSNR [dB] | SSIM | readability [%] "
+            "| re-id top-1 [%] |")
+    lines = [head, "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        att = r["attack"] + (f" (N={int(float(r['n_pairs']))})" if r.get("n_pairs") not in ("", None) else "")
-        acc = r.get("test_acc", float("nan"))
-        acc_s = "-" if acc != acc else f"{100 * float(acc):.1f} %"
         lines.append(
-            f"| {r['encoder']} | {r['embedding']} | {acc_s} | {att} | {float(r['psnr']):.1f} +- {float(r['psnr_std']):.1f} "
-            f"| {float(r['ssim']):.2f} +- {float(r['ssim_std']):.2f} "
-            f"| {100 * float(r['readability']):.1f} +- {100 * float(r['readability_se']):.1f} % "
-            f"| {100 * float(r['reid_top1']):.1f} +- {100 * float(r['reid_top1_se']):.1f} % |"
+            f"| {r['encoder']} | {r['embedding']} | {_acc(r)} | {_threat(r)} | {r['attack']} | {budget_text(r)} "
+            f"| {float(r['psnr']):.1f} +- {float(r['psnr_std']):.1f} | {float(r['ssim']):.2f} +- {float(r['ssim_std']):.2f} "
+            f"| {_rate(r, 'readability', 'readability')} | {_rate(r, 'reid_top1', 'reid')} |"
         )
     return "\n".join(lines) + "\n"
+
+
+def best_per_threat_model(rows: Sequence[dict]) -> list[dict[str, Any]]:
+    """Per cell (encoder, embedding, run), the strongest attack under each threat model.
+
+    Strongest: the highest re-identification top-1 (what leaks about the image beyond its class); ties go to
+    the higher readability, then the higher PSNR. Plaintext rows compete across their pair counts (the row
+    names its ``n_pairs``). The ``mean_scene`` floor belongs to no threat model and is left out. Cells keep the
+    order of their first row, threat models :data:`~optoenc.privacy.settings.THREAT_MODELS`' order.
+    """
+    best: dict[tuple, dict] = {}
+    cells: list[tuple] = []
+    for r in rows:
+        threat = r.get("threat_model") or THREAT_MODEL.get(r["attack"], "")
+        if not threat:
+            continue
+        cell = (r["encoder"], r["embedding"], r.get("run", ""))
+        if cell not in cells:
+            cells.append(cell)
+        score = tuple(float(r[k]) if _given(r.get(k)) else -math.inf for k in ("reid_top1", "readability", "psnr"))
+        key = (*cell, threat)
+        if key not in best or score > best[key][0]:
+            best[key] = (score, {**r, "threat_model": threat})
+    return [best[(*c, t)][1] for c in cells for t in THREAT_MODELS if (*c, t) in best]
+
+
+def best_markdown(rows: Sequence[dict]) -> str:
+    """Markdown table of :func:`best_per_threat_model`: one line per cell and threat model."""
+    lines = ["| encoder | embedding | test acc | threat model | strongest attack | budget | re-id top-1 [%] "
+             "| readability [%] | PSNR [dB] | SSIM |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in best_per_threat_model(rows):
+        lines.append(
+            f"| {r['encoder']} | {r['embedding']} | {_acc(r)} | {r['threat_model']} | {r['attack']} | {budget_text(r)} "
+            f"| {_rate(r, 'reid_top1', 'reid')} | {_rate(r, 'readability', 'readability')} | {float(r['psnr']):.1f} "
+            f"| {float(r['ssim']):.2f} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def _document(rows: Sequence[dict]) -> str:
+    """privacy.md: the strongest attack per threat model, then every attack."""
+    return ("## Strongest attack per threat model (highest re-identification)\n\n" + best_markdown(rows)
+            + "\n## Every attack\n\n" + markdown(rows))
 
 
 def save_examples(out_dir: Path, result, title: str) -> list[Path]:
@@ -139,10 +230,12 @@ def save_examples(out_dir: Path, result, title: str) -> list[Path]:
 
 
 def measure_run(run_dir: Path, evaluate_kw: dict, overrides: Sequence[str] = (), force: bool = False,
-                say: Callable[[str], None] = lambda _m: None, out: Path | None = None) -> list[dict]:
+                say: Callable[[str], None] = lambda _m: None, out: Path | None = None,
+                note: Callable[[str], None] = lambda _m: None) -> list[dict]:
     """Measure one run directory (or reuse its existing table unless ``force``); returns its rows.
 
-    The table and pictures go to ``out`` (default ``RUN_DIR/privacy``).
+    The table and pictures go to ``out`` (default ``RUN_DIR/privacy``); ``note`` is given each line of
+    :attr:`Result.notes <optoenc.privacy.evaluate.Result.notes>` (attacks that do not apply to the camera).
     """
     from ..plugins import get_registry
     from .evaluate import evaluate
@@ -154,6 +247,8 @@ def measure_run(run_dir: Path, evaluate_kw: dict, overrides: Sequence[str] = (),
     run, encoder, summary = load_run(run_dir, overrides)
     splits = get_registry("dataset").get(run.names["dataset"])(run.dataset).load()
     result = evaluate(encoder, splits, cache_root=run.trainer.cache_dir, progress=say, **evaluate_kw)
+    for line in result.notes:
+        note(line)
     rows = run_rows(result, encoder, summary, Path(run_dir).name)
     save_examples(out, result, f"{encoder.name} {rows[0]['embedding']}")
     write_table(rows, table, out / "privacy.md")
@@ -161,11 +256,13 @@ def measure_run(run_dir: Path, evaluate_kw: dict, overrides: Sequence[str] = (),
 
 
 def write_sweep(rows: Sequence[dict], out_dir: Path, chance: float) -> list[Path]:
-    """The combined table and the privacy-utility plots (learned and ADMM attackers) of a sweep."""
+    """The combined table (``privacy.csv``, ``privacy.md``), the strongest attack per cell and threat model
+    (``privacy_best.csv``) and the privacy-utility plots (learned and ADMM attackers) of a sweep."""
     from .pictures import save_frontier
 
     out_dir = Path(out_dir)
-    paths = [write_table(rows, out_dir / "privacy.csv", out_dir / "privacy.md"), out_dir / "privacy.md"]
+    paths = [write_table(rows, out_dir / "privacy.csv", out_dir / "privacy.md"), out_dir / "privacy.md",
+             write_table(best_per_threat_model(rows), out_dir / "privacy_best.csv")]
     for attack in ("learned", "admm"):
         if any(r["attack"] == attack for r in rows):
             paths.append(save_frontier(out_dir / f"privacy_utility_{attack}.png", rows, attack, chance))

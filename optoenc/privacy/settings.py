@@ -9,10 +9,27 @@ from dataclasses import dataclass
 
 from ..settings import Settings, setting
 
-__all__ = ["ADMMConfig", "TikhonovConfig", "LearnedConfig", "PrivacyConfig", "AdversaryConfig", "ATTACKS", "METHODS"]
+__all__ = [
+    "ADMMConfig", "TikhonovConfig", "LearnedConfig", "PrivacyConfig", "ATTACKS", "LEARNED", "METHODS", "THREAT_MODELS",
+    "THREAT_MODEL", "LOSSES",
+]  # fmt: skip
 
 #: Attack names, in table order.
-ATTACKS = ("admm", "learned", "plaintext", "pinv", "learned_one", "admm_search")
+ATTACKS = ("admm", "learned", "learned_conv", "plaintext", "pinv", "learned_one", "admm_search")
+#: The learned (trained inversion network) attacks -> their network: an MLP or the convolutional decoder.
+LEARNED = {"learned": "mlp", "learned_conv": "conv", "learned_one": "mlp"}
+#: Threat models, in table order: the attacker knows the mask (hence the scene operator); has N plaintext
+#: (scene, embedding) pairs and no mask; is black-box (public training scenes and the camera's embeddings of
+#: them, trains an inversion network).
+THREAT_MODELS = ("known_mask", "plaintext", "black_box")
+#: Each attack's threat model (``mean_scene``, the no-information floor, has none: ``""``).
+THREAT_MODEL = {
+    "admm": "known_mask", "pinv": "known_mask", "admm_search": "known_mask", "tikhonov": "known_mask",
+    "plaintext": "plaintext", "learned": "black_box", "learned_conv": "black_box", "learned_one": "black_box",
+    "mean_scene": "",
+}  # fmt: skip
+#: Training losses of the learned attackers.
+LOSSES = ("mse", "l1")
 #: Reconstruction methods of `optoenc reconstruct`.
 METHODS = ("admm", "tikhonov", "pinv")
 
@@ -37,36 +54,35 @@ class TikhonovConfig(Settings):
 
 @dataclass
 class LearnedConfig(Settings):
-    """The learned inversion attacker (an MLP embedding -> scene, trained on the training split)."""
+    """The learned inversion attackers (``learned``: an MLP; ``learned_conv``: a fully connected layer to a small
+    feature map, then transposed convolutions), trained on (embedding, scene) pairs of the training split with a
+    held-out validation part and early stopping (the state of the best validation loss is kept)."""
 
-    pairs: int = setting(20000, "training (embedding, scene) pairs drawn from the training split", ge=1)
-    epochs: int = setting(6, "training epochs (fresh sensor noise every epoch)", ge=1)
-    hidden: int = setting(256, "units of each of the two hidden layers", ge=1)
+    pairs: int = setting(60000, "(embedding, scene) pairs from the training split, validation part included "
+                         "(at most the split's size)", ge=2)
+    epochs: int = setting(50, "maximum training epochs (fresh sensor noise every epoch; training stops earlier when "
+                          "the validation loss has not improved for `patience` epochs)", ge=1)
+    patience: int = setting(5, "epochs without a lower validation loss before training stops", ge=1)
+    val_fraction: float = setting(0.1, "fraction of the pairs held out to validate (at least one pair)", gt=0, lt=1)
+    loss: str = setting("mse", "training and validation loss: mse or l1", choices=LOSSES)
+    hidden: int = setting(256, "learned (MLP): units of each of the two hidden layers", ge=1)
+    channels: int = setting(32, "learned_conv: channels of the first feature map (halved by each transposed "
+                            "convolution, at least 8)", ge=1)
     lr: float = setting(1e-3, "Adam learning rate", gt=0)
     batch_size: int = setting(128, "pairs per optimiser step", ge=1)
+    device: str = setting("auto", "where the attackers train: auto (cuda when available, else cpu), cpu or cuda "
+                          "(the sensor noise is drawn on the CPU either way)", choices=("auto", "cpu", "cuda"))
 
 
 @dataclass
 class PrivacyConfig(Settings):
     """What `optoenc privacy` measures and on how many digits."""
 
-    count: int = setting(500, "test scenes attacked and measured (the first ones of the test split)", ge=1)
+    count: int = setting(1000, "probes: test scenes attacked and measured (the first ones of the test split)", ge=1)
     gallery: int = setting(100, "re-identification gallery: the true scene and gallery-1 others of its class", ge=2)
-    plaintext_n: tuple[int, ...] = setting((100, 300, 1000, 3000, 10000), "plaintext attack: numbers of known pairs", ge=1)
-    seed: int = setting(0, "seed of the sensor noise, the galleries and the learned attacker")
+    plaintext_n: tuple[int, ...] = setting((100, 1000, 10000), "plaintext attack: numbers of known pairs", ge=1)
+    attack_seeds: int = setting(3, "learned attackers: trained with this many seeds (seed, seed+1, ...); a row gives "
+                                "the mean over them", ge=1)
+    seed: int = setting(0, "seed of the sensor noise, the patterns shown, the galleries, the readability classifier "
+                        "and the first learned attacker")
     examples: int = setting(8, "example reconstructions kept for pictures", ge=0)
-
-
-@dataclass
-class AdversaryConfig(Settings):
-    """Privacy-aware training (`fit`, section `privacy`): the encoder trained against a reconstruction adversary.
-
-    Objective per batch: cross-entropy - ``adversary_weight`` * the adversary's reconstruction MSE, the
-    adversary (an MLP from the noisy embedding to the scene) trained alongside on its own MSE
-    (:mod:`optoenc.privacy.adversary`). 0 (the default) is plain training, nothing added.
-    """
-
-    adversary_weight: float = setting(0.0, "weight lambda of the adversary's reconstruction MSE subtracted from the "
-                                      "classifier loss; 0: off (plain training)", ge=0)
-    adversary_hidden: int = setting(256, "units of each of the adversary's two hidden layers", ge=1)
-    adversary_lr: float = setting(1e-3, "the adversary's Adam learning rate", gt=0)

@@ -6,13 +6,14 @@ from __future__ import annotations
 import torch
 
 from .settings import TikhonovConfig
-from .operators import DTYPE, LinearOperator
+from ..encoders.operator import SceneOperator
+from .operators import DTYPE
 
 __all__ = ["TikhonovConfig", "tikhonov", "pseudo_inverse"]
 
 
 @torch.no_grad()
-def tikhonov(op: LinearOperator, y: torch.Tensor, lam: float | None = None) -> torch.Tensor:
+def tikhonov(op: SceneOperator, y: torch.Tensor, lam: float | None = None) -> torch.Tensor:
     """``(A^T A + lam ||A||^2 I)^-1 A^T y``: the regularised least-squares estimate (may be negative)."""
     lam = TikhonovConfig().lam if lam is None else lam
     s = op.norm()
@@ -22,7 +23,7 @@ def tikhonov(op: LinearOperator, y: torch.Tensor, lam: float | None = None) -> t
 
 
 @torch.no_grad()
-def pseudo_inverse(op: LinearOperator, y: torch.Tensor, rcond: float | None = None) -> torch.Tensor:
+def pseudo_inverse(op: SceneOperator, y: torch.Tensor, rcond: float | None = None) -> torch.Tensor:
     """``A^+ y`` with singular values below ``rcond * sigma_max`` dropped (minimum-norm least squares).
 
     Computed in scene space from the eigendecomposition of ``A^T A`` (its

@@ -65,11 +65,21 @@ def main(argv=None) -> int:
     from ..training.allocator import keep_freed_memory
     from ..training.quiet import quiet_lightning
 
+    from ..errors import Interrupted
+    from ..training.resume import raise_on_signals
+
     args = list(sys.argv[1:] if argv is None else argv)
     quiet_lightning()
     try:
         keep_freed_memory()  # as the CLI's processes ($OPTOENC_MALLOC)
-        run_cell(args[0], int(args[1]) if len(args) > 1 else None)
+        with raise_on_signals():  # a signal anywhere in the cell (training, testing, the reference check): one line
+            run_cell(args[0], int(args[1]) if len(args) > 1 else None)
+    except Interrupted as err:  # the run directory is marked (interrupted.json) and says how to resume
+        print(f"optoenc sweep cell interrupted by {err.name}{' ' + err.where if err.where else ''}", file=sys.stderr)
+        return err.exit_code
+    except KeyboardInterrupt:
+        print("optoenc sweep cell interrupted by SIGINT", file=sys.stderr)
+        return 130
     except Exception as err:  # the status file holds the details; one line for the sweep's log
         print(f"optoenc sweep cell failed: {type(err).__name__}: {err}", file=sys.stderr)
         return 1

@@ -15,6 +15,7 @@ from typing import Any
 
 from ..training.callbacks import read_metrics
 from ..training.rundir import RUN_FILES, atomic_write_text
+from . import plots
 from .cells import STATUS, read_clock
 from .runner import PlannedCell
 from .spec import SweepSpec, _fmt
@@ -43,7 +44,7 @@ def precision(run, summary: dict | None = None) -> str:
     What the run used: ``summary.json``'s resolved values where it has them (``auto`` depends on the
     machine), else the configuration's.
     """
-    from ..fidelity.knobs import FIDELITY_PRESETS
+    from ..encoders.fidelity import FIDELITY_PRESETS
 
     summary = summary or {}
     fid = summary.get("fidelity") or {}
@@ -159,8 +160,6 @@ def _markdown(rows: list[dict[str, Any]], columns: tuple[str, ...]) -> str:
 
 def write_tables(spec: SweepSpec, planned: list[PlannedCell], sweep_dir: str | Path) -> dict[str, Path]:
     """``cells.csv``, ``summary.csv``, ``summary.md`` and the plots under ``sweep_dir``."""
-    from . import plots
-
     sweep_dir = Path(sweep_dir)
     rows = cell_rows(spec, planned)
     agg = aggregate(rows)
@@ -176,5 +175,5 @@ def write_tables(spec: SweepSpec, planned: list[PlannedCell], sweep_dir: str | P
     if failed:
         md += ["\n## Failed cells\n", _markdown(failed, ("cell", "error"))]
     out["markdown"] = atomic_write_text(sweep_dir / "summary.md", "\n".join(md))
-    out.update(plots.sweep_plots(rows, planned, sweep_dir))
+    out.update(plots.sweep_plots(agg, planned, sweep_dir))
     return out

@@ -1,10 +1,13 @@
 """Time estimates for a sweep's cells (``optoenc sweep --dry-run``), from measured step times.
 
 A cell's cost is epochs x (training steps x step time + evaluation), plus
-the one-off encoding of the dataset for fixed encoders. Step times come from
+the one-off encoding of the dataset for fixed encoders, plus the reference
+check after training (``trainer.verify_preset``: the test split measured
+again through the encoder rebuilt at that preset). Step times come from
 finished cells of the same kind in this sweep (their ``metrics.csv``) or,
 failing that, from timing a few real optimiser steps of the cell's own
-encoder and decoder on this machine now.
+encoder and decoder on this machine now; the reference check is always
+timed here, on a sample of the test scenes.
 """
 
 from __future__ import annotations
@@ -22,15 +25,18 @@ from .. import hardware
 from ..errors import OptoencError
 from ..limits import torch_threads
 from ..training.rundir import RUN_FILES
+from ..training.run import checks_reference
 from .runner import cell_threads
 
-__all__ = ["kind_of", "estimate"]
+__all__ = ["kind_of", "estimate", "reference_check_s"]
 
 _WARM, _TIMED = 2, 5
 #: Scenes of the dataset timed per cell kind (a training batch at the paper's batch size).
 _SAMPLE = 200
 #: Chunks the sample of a transformed dataset is encoded in (:func:`_measure`).
 _RUNS = 4
+#: Test scenes the reference check is timed on (:func:`reference_check_s`).
+_REFERENCE_SAMPLE = 50
 
 
 def kind_of(run) -> tuple:
@@ -61,13 +67,13 @@ def training_step(run, scene_shape, scenes: torch.Tensor | None = None):
     ``scenes`` (a batch; default random pixels of ``scene_shape``) with random labels. ``store_s``: seconds
     per example of the one-off transform of a stored dataset (``trainer.augment_draw=once``), else 0.
     """
-    from ..config import build_encoder
+    from ..config import encoder_from_run
     from ..plugins import get_registry
     from ..training.augment_once import draws, store_transformed
     from ..training.module import EncoderClassifier
     from ..training.run import canvas_for, precomputes, stores_transformed
 
-    enc = build_encoder(run)
+    enc = encoder_from_run(run)
     dec = get_registry("decoder").get(run.names["decoder"])(
         run.decoder, in_shape=enc.output_shape, num_classes=10, learnable_encoder=enc.learnable)
     augs = [get_registry("augmentation").get(a)(cfg) for a, cfg in run.augment.items()]
@@ -148,6 +154,29 @@ def _measure(run, scene_shape, scenes: torch.Tensor | None = None, n_train: int 
     return {"step_s": step, "encode_s_per_example": per_example + store_s, "precomputed": pre}
 
 
+def reference_check_s(run, scenes: torch.Tensor, n_test: int) -> float:
+    """Seconds the reference check of ``run`` takes: the encoder rebuilt at ``trainer.verify_preset`` (its PSF
+    and operator at that fidelity), then ``n_test`` test scenes measured through it, with noise.
+
+    Timed here: the build and a first call (its caches) once, then the measurement of a sample of ``scenes``
+    (the dataset's own: what a scene lights sets the cost) per example, times ``n_test``. The decoder's
+    share is negligible beside the measurement at the reference fidelity.
+    """
+    from ..config import encoder_from_run
+    from ..encoders.fidelity import FidelityConfig
+
+    x = scenes[:_REFERENCE_SAMPLE].to(torch.float32)
+    t0 = time.perf_counter()
+    with torch.no_grad():
+        ref = encoder_from_run(run, fidelity=FidelityConfig(preset=run.trainer.verify_preset)).eval()
+        ref.add_sensor_noise(ref.measure(x[:2]))
+        setup = time.perf_counter() - t0
+        t1 = time.perf_counter()
+        ref.add_sensor_noise(ref.measure(x))
+        per_example = (time.perf_counter() - t1) / max(len(x), 1)
+    return setup + per_example * n_test
+
+
 def estimate(planned, sweep_dir=None, threads: int | None = None) -> dict[str, dict[str, Any]]:
     """``{cell name: {"seconds": s, "source": "finished cells" | "measured"}}`` for every cell.
 
@@ -162,6 +191,7 @@ def estimate(planned, sweep_dir=None, threads: int | None = None) -> dict[str, d
         if times:
             known.setdefault(kind_of(p.run), sorted(times)[len(times) // 2])
     measured: dict[tuple, dict[str, float]] = {}
+    references: dict[tuple, float] = {}  # (kind, preset) -> seconds of the reference check
     sizes: dict = {}
     out = {}
     for p in planned:
@@ -175,11 +205,18 @@ def estimate(planned, sweep_dir=None, threads: int | None = None) -> dict[str, d
             continue
         done = len(read_metrics(p.path / RUN_FILES["metrics"])) if p.state != "finished" else epochs
         left = max(0, epochs - done)
+        n = cell_threads(p, threads)
+        check = 0.0
+        if p.state != "finished" and checks_reference(run):  # the check runs after the last epoch
+            rk = (k, run.trainer.verify_preset)
+            if rk not in references:
+                with torch_threads(n) if n else contextlib.nullcontext():
+                    references[rk] = reference_check_s(run, sample, n_test)
+            check = references[rk]
         if k in known:
-            out[p.cell.name] = {"seconds": round(left * known[k], 1), "source": "finished cells"}
+            out[p.cell.name] = {"seconds": round(left * known[k] + check, 1), "source": "finished cells"}
             continue
         if k not in measured:
-            n = cell_threads(p, threads)
             with torch_threads(n) if n else contextlib.nullcontext():
                 measured[k] = _measure(run, shape, sample, n_train)
         m = measured[k]
@@ -187,5 +224,5 @@ def estimate(planned, sweep_dir=None, threads: int | None = None) -> dict[str, d
         evals = n_val + (n_test if run.trainer.test_every_epoch else 0)
         per_epoch = steps * m["step_s"] + evals / run.trainer.batch_size * m["step_s"] * 0.4
         once = (n_train + n_val + n_test) * m["encode_s_per_example"] if p.state == "new" else 0.0
-        out[p.cell.name] = {"seconds": round(left * per_epoch + once, 1), "source": "measured"}
+        out[p.cell.name] = {"seconds": round(left * per_epoch + once + check, 1), "source": "measured"}
     return out

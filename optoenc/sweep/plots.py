@@ -17,11 +17,12 @@ def _pixels(embedding: str) -> int:
     return a * b
 
 
-def accuracy_vs_embedding(rows: list[dict[str, Any]], path: Path) -> Path | None:
-    """Test accuracy (mean over seeds, bars = min..max) against embedding pixels, one line per encoder."""
-    from .collect import aggregate
+def accuracy_vs_embedding(summary: list[dict[str, Any]], path: Path) -> Path | None:
+    """Test accuracy (mean over seeds, bars = one standard deviation) against embedding pixels, one line per encoder.
 
-    agg = [r for r in aggregate(rows) if r["transform"] == "original" and r["test_acc"] is not None]
+    ``summary``: the sweep's rows aggregated over seeds (:func:`optoenc.sweep.collect.aggregate`).
+    """
+    agg = [r for r in summary if r["transform"] == "original" and r["test_acc"] is not None]
     decoders = sorted({r["decoder"] for r in agg})
     if not agg or not all("x" in r["embedding"] for r in agg):
         return None
@@ -76,9 +77,10 @@ def learning_curves(planned, path: Path) -> Path | None:
     return _save(plt, fig, path)
 
 
-def sweep_plots(rows, planned, sweep_dir: Path) -> dict[str, Path]:
+def sweep_plots(summary, planned, sweep_dir: Path) -> dict[str, Path]:
+    """``accuracy.png`` from the aggregated rows (``summary``) and ``curves.png`` from the cells' metrics."""
     out = {}
-    for key, fn, arg in (("accuracy_plot", accuracy_vs_embedding, rows), ("curves_plot", learning_curves, planned)):
+    for key, fn, arg in (("accuracy_plot", accuracy_vs_embedding, summary), ("curves_plot", learning_curves, planned)):
         p = fn(arg, sweep_dir / f"{key.replace('_plot', '')}.png")
         if p is not None:
             out[key] = p

@@ -4,6 +4,11 @@
   :func:`fit`, :func:`evaluate`, :func:`verify`, :func:`load_encoder`;
 * :mod:`optoenc.training.module`: the LightningModule (augmentation ->
   encoder -> noise -> decoder);
+* :mod:`optoenc.training.epoch_loop`: a fixed encoder's epoch of precomputed
+  embeddings stepped through in one Lightning step (manual optimisation);
+* :mod:`optoenc.training.seeding`: the per-batch seeds every loop draws from;
+* :mod:`optoenc.training.adversary`: privacy-aware training (the encoder
+  against a reconstruction adversary, ``privacy.adversary_weight``);
 * :mod:`optoenc.training.callbacks`: per-epoch metrics, checkpoints, the
   finite-loss guard;
 * :mod:`optoenc.training.loaders`: epoch samplers, batched loaders and the
@@ -11,6 +16,8 @@
 * :mod:`optoenc.training.cache`: the embedding cache, keyed by content;
 * :mod:`optoenc.training.augment_once`: augmentations drawn once and cached;
 * :mod:`optoenc.training.resume`: resuming, interruption and its markers;
+* :mod:`optoenc.training.allocator`: glibc's malloc set to keep freed memory
+  (the command line's and sweep cells' processes);
 * :mod:`optoenc.training.rundir`: run directories and atomic writes (a
   foundation module: it imports only :mod:`optoenc.errors`, and every layer
   uses it).

@@ -1,4 +1,4 @@
-"""Privacy-aware training: the encoder trained against a reconstruction adversary (issue 12, section 4).
+"""Privacy-aware training: the encoder trained against a reconstruction adversary.
 
 Min-max objective (``privacy.adversary_weight = lambda > 0`` in `optoenc fit`)::
 
@@ -35,7 +35,7 @@ from torch import nn
 from torch.func import functional_call
 
 from ..errors import ConfigError
-from .settings import AdversaryConfig
+from ..config import AdversaryConfig
 
 __all__ = ["AdversaryConfig", "Adversary", "AdversaryObjective", "from_config"]
 

@@ -98,16 +98,17 @@ def transformed_embedding(encoder, comp: Compose, canvas, scenes: torch.Tensor,
     """Noise-free embeddings of ``scenes`` placed on ``canvas`` and transformed by ``comp`` (``u``: draws).
 
     Only the part of the canvas the objects can reach is transformed and measured
-    (:meth:`~optoenc.augment.Compose.place_window`, :meth:`~optoenc.encoders.base.OpticalEncoder.measure_window`).
+    (:meth:`~optoenc.augment.Compose.place_window`, :meth:`~optoenc.encoders.operator.SceneOperator.apply_window`).
     """
     placed = comp.place_bands(scenes, canvas, encoder.scene_config.object_height, u)
+    op = encoder.operator(canvas.shape, canvas.height)
     if placed is None:  # a warp after the shifts and rescales: it needs the window
         window, corner = comp.place_window(scenes, canvas, encoder.scene_config.object_height, u)
-        return encoder.measure_window(window, corner, canvas.shape, height=canvas.height)
+        return op.apply_window(window, corner)
     placed, offsets, (r0, r1, c0, c1) = placed
     if offsets is None:  # the whole window
-        return encoder.measure_window(placed, (r0, c0), canvas.shape, height=canvas.height)
-    return encoder.measure_pasted(placed, offsets, (r0, r1, c0, c1), canvas.shape, height=canvas.height)
+        return op.apply_window(placed, (r0, c0))
+    return op.apply_pasted(placed, offsets, (r0, r1, c0, c1))
 
 
 def stored_embedding(encoder, canvas, windows: torch.Tensor, offsets: torch.Tensor) -> torch.Tensor:
@@ -115,13 +116,13 @@ def stored_embedding(encoder, canvas, windows: torch.Tensor, offsets: torch.Tens
 
     The batch's windows are pasted on the part of the canvas that holds them all (the bounding box of
     their offsets), which the encoder measures as a window of the whole canvas
-    (:meth:`~optoenc.encoders.base.OpticalEncoder.measure_window`): a rotated or rescaled digit stays near
+    (:meth:`~optoenc.encoders.operator.SceneOperator.apply_pasted`): a rotated or rescaled digit stays near
     the canvas centre, so that part is a few percent of the canvas.
     """
     h, w = windows.shape[-2:]
     offsets = offsets.to(windows.device, torch.long)
     (r0, c0), (r1, c1) = offsets.amin(0).tolist(), (offsets.amax(0) + torch.tensor([h, w], device=offsets.device)).tolist()
-    return encoder.measure_pasted(windows, offsets, (r0, r1, c0, c1), canvas.shape, height=canvas.height)
+    return encoder.operator(canvas.shape, canvas.height).apply_pasted(windows, offsets, (r0, r1, c0, c1))
 
 
 @torch.no_grad()

@@ -24,6 +24,7 @@ from typing import Any, Callable, Mapping
 
 import torch
 
+from ..errors import DataError
 from ..settings import to_dict
 from .rundir import atomic_write_bytes
 
@@ -40,6 +41,8 @@ FORMAT = 2
 _DIGEST_BITS = 40
 #: Scenes in the probe batch: a few dataset scenes plus seeded random ones (every pixel lit).
 _PROBE = 4
+#: Cache folders a write failed in (read-only, full): this process stores nothing more there, and warned once.
+_UNWRITABLE: set[str] = set()
 
 
 def cache_dir(override: str | None = None) -> Path:
@@ -68,11 +71,6 @@ def _probe_scenes(scenes: torch.Tensor | None, channels: int, shape: tuple[int, 
     return torch.cat([scenes[:_PROBE].to(torch.float64), rand])
 
 
-#: Sensor settings that change how a learned encoder trains, never an embedding: not part of the key (a cache
-#: written before they existed stays valid).
-_TRAINING_ONLY = ("noise_level_gradient",)
-
-
 @torch.no_grad()
 def embedding_key(encoder, dataset_config: Any, dataset_token: str = "", scenes: torch.Tensor | None = None) -> str:
     """A hex digest of everything that determines ``encoder``'s embeddings of a dataset.
@@ -99,7 +97,7 @@ def embedding_key(encoder, dataset_config: Any, dataset_token: str = "", scenes:
         "encoder_config": to_dict(encoder.config),
         "encoder_token": token,
         "scene": to_dict(encoder.scene_config),
-        "sensor": {k: v for k, v in to_dict(encoder.sensor).items() if k not in _TRAINING_ONLY},
+        "sensor": to_dict(encoder.sensor),
         "fidelity": encoder.knobs.to_dict(),
         "embedding_shape": list(encoder.output_shape),
         "dataset": to_dict(dataset_config),
@@ -175,9 +173,15 @@ def cached(
         elif hit is not None:
             return hit, True
     tensors = compute()
-    if enabled:
+    folder = str(cache_dir(root))
+    if enabled and folder not in _UNWRITABLE:
         try:
             store(key, tensors, root)
-        except OSError as err:  # a read-only or full disk must not stop a run
-            warnings.warn(f"could not write the embedding cache ({err})", stacklevel=2)
+        except (OSError, DataError) as err:  # a read-only or full disk must not stop a run: it runs without the cache
+            _UNWRITABLE.add(folder)
+            warnings.warn(
+                f"the embedding cache cannot be written, running without it ({err}); set {ENV} or trainer.cache_dir "
+                "to a writable folder, or trainer.cache=false",
+                stacklevel=2,
+            )
     return tensors, False

@@ -218,7 +218,10 @@ class FiniteLoss(L.Callback):
 
 
 class EpochLines(L.Callback):
-    """Progress for logs (stdout not a terminal): one line per epoch instead of a bar of carriage returns."""
+    """Progress for logs (stdout not a terminal): one line per epoch instead of a bar of carriage returns.
+
+    Printed by the first process only (a distributed run's metrics are reduced over its processes).
+    """
 
     def __init__(self, stream=None):
         self.stream = stream
@@ -228,6 +231,8 @@ class EpochLines(L.Callback):
         self._start = time.time()
 
     def on_train_epoch_end(self, trainer, pl_module) -> None:
+        if not trainer.is_global_zero:  # distributed: one line an epoch, from rank 0 (the metrics are reduced)
+            return
         m = trainer.callback_metrics
         parts = [f"epoch {trainer.current_epoch + 1}/{trainer.max_epochs}"]
         for k, name in (("train_loss_epoch", "train_loss"), ("train_acc", "train_acc"), ("val_loss", "val_loss"), ("val_acc", "val_acc")):

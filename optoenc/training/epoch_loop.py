@@ -6,9 +6,14 @@ closure, logging) costs as much again. With ``trainer.loop = 'epoch'`` Lightning
 the whole epoch as one batch (every example and the shuffled order) and :func:`train_epoch`
 steps through its mini-batches: the same batches in the same order, the same per-batch seeds
 (so the same noise), the same updates (plain backward, then the optimiser's step) as the
-per-batch loop, without the per-step hooks. Validation, testing, checkpoints (at epoch ends,
-as before), logging and resuming stay Lightning's. With one torch thread the noise of the next
-mini-batch is drawn on a helper thread while this one trains (the same draws: :func:`_noise_ahead`).
+per-batch loop, without the per-batch hooks.
+
+It is Lightning's public manual optimisation: the module sets ``automatic_optimization =
+False`` and each update is a ``step()`` of the optimiser :meth:`~lightning.pytorch.LightningModule.optimizers`
+returns, which Lightning counts in ``trainer.global_step`` (so checkpoints and loggers see
+every step, as with the per-batch loop). Validation, testing, checkpoints (at epoch ends),
+logging and resuming stay Lightning's. With one torch thread the noise of the next mini-batch
+is drawn on a helper thread while this one trains (the same draws: :func:`_noise_ahead`).
 """
 
 from __future__ import annotations
@@ -19,8 +24,10 @@ import torch
 import torch.nn.functional as F
 
 from ..errors import ConfigError
+from .loaders import drops_single_last
+from .seeding import reseed, train_batch_seed
 
-__all__ = ["LOOPS", "resolve_loop", "batch_count", "train_epoch", "align_step_counts"]
+__all__ = ["LOOPS", "resolve_loop", "batch_count", "train_epoch"]
 
 #: ``trainer.loop`` values.
 LOOPS = ("auto", "batch", "epoch")
@@ -62,8 +69,6 @@ def batch_count(n: int, batch_size: int, limit: int | float = 1.0) -> int:
     :func:`~optoenc.training.loaders.make_loader` drops it); ``limit`` is Lightning's
     ``limit_train_batches`` (a fraction < 1, or a number of batches).
     """
-    from .loaders import drops_single_last
-
     nb = -(-n // batch_size) - drops_single_last(n, batch_size)
     if isinstance(limit, float):
         return nb if limit >= 1.0 else max(1, int(nb * limit))
@@ -80,21 +85,18 @@ def train_epoch(module, batch, batch_size: int, limit: int | float = 1.0) -> dic
     first non-finite loss ``{"loss": that loss, "batch_idx": its batch}`` (the run's
     :class:`~optoenc.training.callbacks.FiniteLoss` stops it there).
     """
-    from .module import _reseed, train_batch_seed
-
     x, y, order = batch[0], batch[1], batch[-1]
-    opt = module.optimizers()
-    opt = getattr(opt, "optimizer", opt)  # the torch optimiser itself: no per-step Lightning hooks
+    opt = module.optimizers()  # Lightning's wrapper: its step() is counted in trainer.global_step
     sigma = _noise_sigma(module, x)
     nb = batch_count(len(order), batch_size, limit)
     seeds = [train_batch_seed(module.seed, module.current_epoch, b) for b in range(nb)]
     sizes = [min(batch_size, len(order) - b * batch_size) for b in range(nb)]
     draws = _noise_ahead(seeds, sizes, x) if _draws_ahead(sigma, x) else None
-    params = [p for group in opt.param_groups for p in group["params"]]
-    total, count, count_steps = 0.0, 0, 0
+    params = [p for group in opt.optimizer.param_groups for p in group["params"]]
+    total, count = 0.0, 0
     predicted, labels = [], []
     for b in range(nb):
-        _reseed(seeds[b])  # the per-batch loop's on_train_batch_start
+        reseed(seeds[b])  # the per-batch loop's on_train_batch_start
         noise = None
         if draws is not None:
             # The default generator continues from where the noise's draw left the helper's: whatever the step
@@ -107,7 +109,6 @@ def train_epoch(module, batch, batch_size: int, limit: int | float = 1.0) -> dic
         logits = module.decoder(module.embed(xb, augment=True, sigma=sb, noise=noise))
         loss = F.cross_entropy(logits, yb)
         if not math.isfinite(loss.item()):
-            _count_steps(module.trainer, count_steps)
             return {"loss": loss.detach(), "batch_idx": b}
         # The accuracy is counted once an epoch: the same count as updating the metric every batch (each
         # example's class is its logits' argmax either way), without torchmetrics' 0.2 ms a call.
@@ -119,8 +120,6 @@ def train_epoch(module, batch, batch_size: int, limit: int | float = 1.0) -> dic
         loss.backward()
         opt.step()
         module.encoder.constrain_()
-        count_steps += 1
-    _count_steps(module.trainer, count_steps)
     if predicted:
         module.train_acc.update(torch.cat(predicted), torch.cat(labels))
     mean = total / count if count else torch.tensor(float("nan"))
@@ -143,7 +142,7 @@ def _noise_ahead(seeds: list[int], sizes: list[int], x: torch.Tensor):
     """The mini-batches' standard-normal noise draws, in turn, each drawn on a helper thread one batch ahead.
 
     Batch ``b``'s draws are ``torch.randn`` of its shape (``sizes[b]`` examples) from a generator seeded
-    ``seeds[b]``: what the default generator, reseeded so for the batch, draws in :func:`~optoenc.encoders.imaging.add_noise`
+    ``seeds[b]``: what the default generator, reseeded so for the batch, draws in :func:`~optoenc.encoders.noise.add_noise`
     (the same numbers). Drawing them is a serial Mersenne-twister loop, an eighth of a 24 x 32 FCNN step
     on one thread; the helper thread draws the next batch's while this one trains (the draw releases
     Python's lock), on a core the step's own threads leave free. Each batch yields ``(noise, state)``: the
@@ -179,29 +178,3 @@ def _noise_sigma(module, x: torch.Tensor) -> torch.Tensor | None:
         sigma = module.encoder.noise_sigma(x)
     module._epoch_sigma = (x, sigma)
     return sigma
-
-
-def _count_steps(trainer, n: int) -> None:
-    """Add ``n`` optimiser steps to Lightning's count (``trainer.global_step``), as its optimiser wrapper would.
-
-    The checkpoint callback saves only when ``global_step`` has moved since its last save, and the
-    loggers' step axis is ``global_step``: without this count no checkpoint after the first is written.
-    """
-    progress = trainer.fit_loop.epoch_loop.manual_optimization.optim_step_progress
-    progress.total.increment_by(n)
-    progress.current.increment_by(n)
-
-
-def align_step_counts(trainer) -> None:
-    """Lightning's two optimiser-step counters made equal (the larger), at the start of training.
-
-    Lightning counts steps in the automatic-optimisation counter (the batch loop) or the manual one
-    (the epoch loop), and ``global_step`` reads the one the module uses: a run checkpointed under one
-    loop and resumed under the other (a sweep started before ``trainer.loop`` existed) would restart
-    its step count from zero.
-    """
-    loop = trainer.fit_loop.epoch_loop
-    counters = (loop.automatic_optimization.optim_progress.optimizer.step.total, loop.manual_optimization.optim_step_progress.total)
-    n = max(c.completed for c in counters)
-    for c in counters:
-        c.increment_by(n - c.completed)

@@ -13,18 +13,13 @@ from torchmetrics.classification import MulticlassAccuracy
 
 from ..decoders import Decoder
 from ..encoders.base import OpticalEncoder
+from .epoch_loop import train_epoch
+from .seeding import eval_batch_seed, reseed, train_batch_seed
 
-__all__ = ["EncoderClassifier", "SEED_STRIDE", "train_batch_seed"]
+__all__ = ["EncoderClassifier", "LOOP_KEY"]
 
-#: Every epoch (and every evaluation pass) starts from a seed derived from the
-#: run seed, so a resumed run draws exactly what an uninterrupted one would.
-SEED_STRIDE = 1_000_003
-
-
-def train_batch_seed(seed: int, epoch: int, batch_idx: int) -> int:
-    """The seed training batch ``batch_idx`` of ``epoch`` draws its noise and augmentations from (one rule for the
-    per-batch loop, the epoch loop and its noise drawn ahead: the same draws in all three)."""
-    return seed + SEED_STRIDE * (epoch + 1) + 7 * batch_idx
+#: Checkpoint entry naming the training loop that wrote it (``'batch'`` or ``'epoch'``).
+LOOP_KEY = "optoenc_loop"
 
 
 class EncoderClassifier(L.LightningModule):
@@ -37,10 +32,8 @@ class EncoderClassifier(L.LightningModule):
         canvas: canvas geometry for augmentations (from :mod:`optoenc.augment`);
             ``None`` when there are none.
         lr: Adam learning rate; ``encoder_lr`` for the encoder (default ``lr``).
-        encoder_lr_schedule: ``'constant'``, or ``'cosine'``: the encoder's rate annealed per epoch,
-            ``encoder_lr * (1 + cos(pi e / max_epochs)) / 2`` at epoch ``e`` (the decoder's stays ``lr``).
         weight_decay: decoupled weight decay (AdamW) of the decoder's weight matrices; 0: Adam.
-        seed: run seed (per-epoch reseeding, see :data:`SEED_STRIDE`).
+        seed: run seed (per-batch reseeding: :mod:`optoenc.training.seeding`).
         precomputed: batches hold noise-free embeddings, not scenes (fixed
             encoders encode the dataset once); noise is still drawn per batch.
         augment_eval: apply the augmentations at validation and test too
@@ -63,7 +56,6 @@ class EncoderClassifier(L.LightningModule):
         canvas=None,
         lr: float = 1e-3,
         encoder_lr: float | None = None,
-        encoder_lr_schedule: str = "constant",
         weight_decay: float = 0.0,
         seed: int = 0,
         precomputed: bool = False,
@@ -78,12 +70,11 @@ class EncoderClassifier(L.LightningModule):
         self.augmentations = nn.ModuleList(augmentations)
         self.canvas = canvas
         self.lr, self.encoder_lr, self.seed = lr, encoder_lr or lr, int(seed)
-        self.encoder_lr_schedule = encoder_lr_schedule
         self.weight_decay = float(weight_decay)
         self.precomputed = precomputed
         self.augment_eval = augment_eval
         self.stored_canvases = stored_canvases
-        #: Privacy-aware training (:class:`optoenc.privacy.adversary.AdversaryObjective`), None: plain.
+        #: Privacy-aware training (:class:`optoenc.training.adversary.AdversaryObjective`), None: plain.
         self.adversary = adversary
         n = decoder.num_classes
         self.train_acc = MulticlassAccuracy(num_classes=n, average="micro")
@@ -131,6 +122,14 @@ class EncoderClassifier(L.LightningModule):
         return self.encoder.add_sensor_noise(clean, sigma=sigma, noise=noise)
 
     # --------------------------------------------------------------- steps
+    @property
+    def _distributed(self) -> bool:
+        """Whether this module trains in several processes: its logged losses are then averaged over them
+        (``sync_dist``), so every process logs, and rank 0 writes and prints, the same figures (the
+        accuracies are torchmetrics metrics, which gather their counts from every process themselves)."""
+        trainer = self._trainer
+        return trainer is not None and trainer.world_size > 1
+
     def _step(self, batch, metric, stage: str, augment: bool, batch_idx: int = 0) -> torch.Tensor:
         x, y = batch[0], batch[1]
         emb = self.embed(x, augment, batch[2] if len(batch) > 2 else None)
@@ -140,24 +139,18 @@ class EncoderClassifier(L.LightningModule):
         if stage == "train":
             self._log_train(loss.detach(), len(y), batch_idx)
         else:
-            self.log(f"{stage}_loss", loss, on_step=False, on_epoch=True, prog_bar=stage != "test", batch_size=len(y))
+            self.log(f"{stage}_loss", loss, on_step=False, on_epoch=True, prog_bar=stage != "test", batch_size=len(y),
+                     sync_dist=self._distributed)
             self.log(f"{stage}_acc", metric, on_step=False, on_epoch=True, prog_bar=True, batch_size=len(y))
         if self.adversary is not None and stage == "train":  # privacy-aware training: CE - lambda * adversary MSE
             loss, adv_mse = self.adversary.objective(loss, emb, x)
-            self.log("train_adversary_mse", adv_mse, on_step=False, on_epoch=True, batch_size=len(y))
+            self.log("train_adversary_mse", adv_mse, on_step=False, on_epoch=True, batch_size=len(y), sync_dist=self._distributed)
         return loss
 
     def training_step(self, batch, batch_idx):
         if self.epoch_loop is not None:
-            from .epoch_loop import train_epoch
-
             return train_epoch(self, batch, *self.epoch_loop)
         return self._step(batch, self.train_acc, "train", augment=True, batch_idx=batch_idx)
-
-    def on_train_start(self) -> None:
-        from .epoch_loop import align_step_counts
-
-        align_step_counts(self.trainer)  # a run resumed under the other trainer.loop keeps its step count
 
     def on_train_epoch_start(self) -> None:
         self._train_totals = (0.0, 0)
@@ -177,14 +170,16 @@ class EncoderClassifier(L.LightningModule):
         if trainer is None:  # a step outside a Trainer: nothing to log to
             return
         if not math.isfinite(trainer.num_training_batches):  # an unsized loader: no last batch to wait for
-            self.log("train_loss", loss, on_step=True, on_epoch=True, prog_bar=True, batch_size=n)
+            self.log("train_loss", loss, on_step=True, on_epoch=True, prog_bar=True, batch_size=n, sync_dist=self._distributed)
             self.log("train_acc", self.train_acc, on_step=False, on_epoch=True, prog_bar=True, batch_size=n)
             return
         if (batch_idx + 1) % max(1, trainer.log_every_n_steps) == 0:
-            self.log("train_loss_step", loss, on_step=True, on_epoch=False, prog_bar=True, batch_size=n)
+            self.log("train_loss_step", loss, on_step=True, on_epoch=False, prog_bar=True, batch_size=n,
+                     sync_dist=self._distributed)
         if batch_idx + 1 >= trainer.num_training_batches:
             total, count = self._train_totals
-            self.log("train_loss_epoch", total / count, on_step=False, on_epoch=True, prog_bar=True, batch_size=count)
+            self.log("train_loss_epoch", total / count, on_step=False, on_epoch=True, prog_bar=True, batch_size=count,
+                     sync_dist=self._distributed)
             self.log("train_acc", self.train_acc.compute(), on_step=False, on_epoch=True, prog_bar=True)
 
     def validation_step(self, batch, batch_idx):
@@ -195,16 +190,19 @@ class EncoderClassifier(L.LightningModule):
 
     # --------------------------------------------------------------- seeding
     # Each batch draws its noise and augmentations from a seed derived from
-    # (run seed, stage, epoch, batch): a resumed run draws exactly what an
-    # uninterrupted one would, whatever else consumed random numbers.
+    # (run seed, stage, epoch, batch) (:mod:`.seeding`): a resumed run draws
+    # exactly what an uninterrupted one would, whatever else consumed random numbers.
     def on_train_batch_start(self, batch, batch_idx) -> None:
-        _reseed(train_batch_seed(self.seed, self.current_epoch, batch_idx))
+        reseed(train_batch_seed(self.seed, self.current_epoch, batch_idx))
 
     def on_validation_batch_start(self, batch, batch_idx, dataloader_idx: int = 0) -> None:
-        _reseed(self.seed + 17 + 7 * batch_idx)
+        reseed(eval_batch_seed(self.seed, "val", batch_idx))
 
     def on_test_batch_start(self, batch, batch_idx, dataloader_idx: int = 0) -> None:
-        _reseed(self.seed + 29 + 7 * batch_idx)
+        reseed(eval_batch_seed(self.seed, "test", batch_idx))
+
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        checkpoint[LOOP_KEY] = "batch" if self.epoch_loop is None else "epoch"
 
     # --------------------------------------------------------------- optimiser
     def optimizer_step(self, *args, **kwargs) -> None:
@@ -229,41 +227,7 @@ class EncoderClassifier(L.LightningModule):
             groups.append({"params": params, "lr": self.encoder_lr * scale, "encoder": True, "weight_decay": 0.0})
         if self.adversary is not None:
             groups.append({"params": list(self.adversary.parameters()), "lr": self.adversary.lr, "weight_decay": 0.0})
-        opt = _adam(groups, decoupled=self.weight_decay > 0)
-        if self.encoder_lr_schedule == "constant" or not enc:
-            return opt
-        epochs = max(int(self.trainer.max_epochs or 1), 1)
-        factors = [_cosine(epochs) if g.get("encoder") else _constant for g in opt.param_groups]
-        sched = torch.optim.lr_scheduler.LambdaLR(opt, factors)
-        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "epoch"}}
-
-
-def _constant(epoch: int) -> float:
-    return 1.0
-
-
-class _cosine:
-    """Picklable cosine factor ``(1 + cos(pi e / epochs)) / 2`` of epoch ``e`` (1 at the first epoch)."""
-
-    def __init__(self, epochs: int):
-        self.epochs = epochs
-
-    def __call__(self, epoch: int) -> float:
-        return 0.5 * (1.0 + math.cos(math.pi * min(epoch, self.epochs) / self.epochs))
-
-
-def _reseed(seed: int) -> None:
-    """``torch.manual_seed(seed)`` for the generators in use: the CPU's, and the accelerators' once initialised.
-
-    ``torch.manual_seed`` also queues a seed for every accelerator backend not yet initialised (CUDA, XPU,
-    MTIA), recording a Python stack trace each time: 1.1 ms a call, a sixth of a small decoder's training
-    step, on a machine without them. The CPU draws are the same.
-    """
-    torch.default_generator.manual_seed(seed)
-    if torch.cuda.is_initialized():
-        torch.cuda.manual_seed_all(seed)
-    if torch.backends.mps.is_available():
-        torch.mps.manual_seed(seed)
+        return _adam(groups, decoupled=self.weight_decay > 0)
 
 
 def _adam(groups, decoupled: bool = False) -> torch.optim.Optimizer:

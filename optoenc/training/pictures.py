@@ -130,7 +130,8 @@ def mask_spacing(encoder, mask: torch.Tensor) -> tuple[float, float] | None:
 
 
 def save_mask(
-    path: str | Path, mask: torch.Tensor, title: str = "mask transmittance", spacing: tuple[float, float] | None = None
+    path: str | Path, mask: torch.Tensor, title: str = "mask transmittance", spacing: tuple[float, float] | None = None,
+    throughput: float | None = None,
 ) -> Path:
     """Save a mask: ``(H, W)`` transmittance, ``(3, H, W)`` per colour, or complex (drawn as its phase).
 
@@ -138,6 +139,8 @@ def save_mask(
         spacing: physical sample spacing (rows, columns) in metres: axes in
             millimetres at the true aspect (see :func:`mask_spacing`); None:
             axes in samples, still square samples.
+        throughput: the encoder's light throughput (:meth:`~optoenc.encoders.base.OpticalEncoder.throughput`),
+            stated under the title; None: not stated.
     """
     m = mask.detach().cpu()
     plt, fig = _figure(_figsize(m.shape, spacing))
@@ -160,6 +163,8 @@ def save_mask(
             im = ax.imshow(m.squeeze().numpy(), cmap="gray", vmin=0, vmax=1, interpolation="nearest", extent=ext)
             fig.colorbar(im, ax=ax, label="amplitude transmittance (0 opaque, 1 clear)", fraction=0.046, pad=0.04)
     _axes_labels(ax, "on mask", spacing is not None)
+    if throughput is not None:
+        title = f"{title}\nthroughput {throughput:.3g} (of a fully open aperture's light)"
     ax.set_title(title)
     return _save(plt, fig, path)
 

@@ -19,21 +19,21 @@ import torch
 
 
 from .. import hardware
-from ..config import RunConfig, build_encoder
+from ..config import RunConfig, encoder_from_run
 from ..errors import ConfigError, DataError, Interrupted, OptoencError
-from ..fidelity.knobs import FidelityConfig
+from ..encoders.fidelity import FidelityConfig
 from ..plugins import get_registry
-from ..privacy import adversary
 from ..settings import to_dict
 from . import pictures
-from . import cache
+from . import adversary, cache
 from .epoch_loop import resolve_loop
 from .loaders import encode, make_loader
-from .module import EncoderClassifier
+from .module import LOOP_KEY, EncoderClassifier
 from .resume import clear_interrupted, interrupted_note, mark_failed, raise_on_signals, read_checkpoint
 from .rundir import RUN_FILES, atomic_write_text, write_json
 
-__all__ = ["Parts", "build", "precomputes", "stores_transformed", "canvas_for", "fit", "evaluate", "checkpoint_path", "load_encoder", "verify"]
+__all__ = ["Parts", "build", "precomputes", "stores_transformed", "canvas_for", "fit", "evaluate", "checkpoint_path", "load_encoder",
+           "checks_reference", "verify"]
 
 log = logging.getLogger(__name__)
 
@@ -74,18 +74,22 @@ def canvas_for(run: RunConfig, encoder, scene_shape):
     )
 
 
-def build(run: RunConfig, progress: bool = False) -> Parts:
-    """Instantiate dataset, encoder, decoder, augmentations and loaders for ``run``."""
+def build(run: RunConfig, progress: bool = False, loop: str | None = None) -> Parts:
+    """Instantiate dataset, encoder, decoder, augmentations and loaders for ``run``.
+
+    ``loop``: the training loop to keep where it applies (a resumed run's checkpoint names the loop that
+    wrote it); None: ``trainer.loop`` resolved.
+    """
     if run.trainer.threads:
         torch.set_num_threads(run.trainer.threads)
     if run.fidelity.preset == "auto":
-        from ..fidelity.auto import resolve
+        from ..bench.auto import resolve
 
         run.fidelity, run.fidelity_auto = resolve(run, root=run.trainer.cache_dir)
     torch.manual_seed(run.seed)
     splits = get_registry("dataset").get(run.names["dataset"])(run.dataset).load()
     splits.check_trainable()  # val_size = 0 used to train with NaN validation and leave no best.ckpt
-    encoder = build_encoder(run)
+    encoder = encoder_from_run(run)
     augs = [get_registry("augmentation").get(a)(cfg) for a, cfg in run.augment.items()]
     decoder = get_registry("decoder").get(run.names["decoder"])(
         run.decoder, in_shape=encoder.output_shape, num_classes=splits.num_classes, learnable_encoder=encoder.learnable
@@ -96,10 +100,11 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
     world = _world_size(run)
     obj = adversary.from_config(run.privacy, encoder, splits.train[0].shape[1:])
     # Resolved before the dataset is encoded: a trainer.loop that cannot apply is refused at once.
-    loop = resolve_loop(
-        run.trainer.loop, precomputed=precomputed, world=world, strategy=str(run.trainer.strategy),
-        precision=hardware.trainer_precision(run.trainer.precision, run.trainer.accelerator), adversary=obj is not None,
-    )
+    where = dict(precomputed=precomputed, world=world, strategy=str(run.trainer.strategy),
+                 precision=hardware.trainer_precision(run.trainer.precision, run.trainer.accelerator),
+                 adversary=obj is not None)
+    either = resolve_loop("auto", **where) == "epoch"  # where the epoch loop applies, so does the batch loop
+    loop = loop if either and loop in ("batch", "epoch") else resolve_loop(run.trainer.loop, **where)
     bs, ebs = run.trainer.batch_size, run.trainer.eval_batch_size
     data = {"train": splits.train, "val": splits.val, "test": splits.test}
     canvas = canvas_for(run, encoder, splits.train[0].shape[-2:]) if augs else None
@@ -144,7 +149,6 @@ def build(run: RunConfig, progress: bool = False) -> Parts:
         canvas=canvas,
         lr=run.trainer.lr,
         encoder_lr=run.trainer.encoder_lr,
-        encoder_lr_schedule=run.trainer.encoder_lr_schedule,
         weight_decay=run.trainer.weight_decay,
         seed=run.seed,
         precomputed=precomputed,
@@ -252,7 +256,8 @@ def _pictures(parts: Parts, run: RunConfig, run_dir: Path, tag: str) -> None:
         pictures.save_psf(pic / f"psf_{tag}.png", psf, enc.geometry.spacing, f"{enc.name} PSF ({tag})")
         mask = enc.mask()
         if mask is not None:
-            pictures.save_mask(pic / f"mask_{tag}.png", mask, f"{enc.name} mask ({tag})", pictures.mask_spacing(enc, mask))
+            pictures.save_mask(pic / f"mask_{tag}.png", mask, f"{enc.name} mask ({tag})", pictures.mask_spacing(enc, mask),
+                               throughput=enc.throughput())
         n = run.output.examples
         if n and tag != "initial":
             x, y = parts.splits.test[0][:n], parts.splits.test[1][:n]
@@ -277,7 +282,9 @@ def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> di
     ckpt = checkpoint_path(run_dir, "last")
     # Nothing is written until the run can start: settings, data, checkpoint and trainer all check out first.
     restored = read_checkpoint(ckpt, "last checkpoint, needed to resume") if resume else None
-    parts = build(run, progress=run.trainer.progress)
+    # A resumed run continues under the loop that wrote its checkpoint (both give the same numbers; Lightning counts
+    # the optimiser steps of each in a counter of its own, so switching would restart trainer.global_step).
+    parts = build(run, progress=run.trainer.progress, loop=(restored or {}).get(LOOP_KEY))
     if restored is not None:
         _check_restore(parts.module, restored, ckpt)
     from .callbacks import WallClock
@@ -299,6 +306,19 @@ def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> di
         if isinstance(err, OptoencError):  # the CLI's one line says where that is
             err.args = (f"{err}; the run is marked failed in {marker}",)
         raise
+    try:  # testing and the reference check take minutes: a signal there also leaves a resumable, marked run
+        with raise_on_signals():
+            summary = _finish(parts, run, run_dir, trainer, clock, start)
+    except Interrupted as err:
+        err.where = interrupted_note(run_dir, err.name, run.trainer.max_epochs)
+        raise
+    write_json(run_dir / RUN_FILES["summary"], summary)
+    clear_interrupted(run_dir)
+    return summary
+
+
+def _finish(parts: Parts, run: RunConfig, run_dir: Path, trainer, clock, start: float) -> dict[str, Any]:
+    """After training: the test of the selected epoch, the final pictures, the reference check; the summary."""
     best = checkpoint_path(run_dir, "best")
     best_val = float(trainer.checkpoint_callback.best_model_score or float("nan"))
     if best_val != best_val:  # ddp_spawn: the callback's state stays in the workers; metrics.csv has it
@@ -320,6 +340,7 @@ def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> di
         "fidelity": parts.module.encoder.knobs.to_dict(),
         "precision": trainer.precision,  # Lightning's, resolved ('auto' -> bf16-mixed or 32-true)
         "d2": float(parts.module.encoder.d2),  # metres: the mask-to-sensor distance trained (learned with learn_d2)
+        "throughput": parts.module.encoder.throughput(),  # collected light relative to a fully open aperture
         "wall_time_s": round(clock.total(), 2),  # every segment of a resumed run
         "segment_wall_time_s": round(time.time() - start, 2),
         "encoder": to_dict(run.encoder),
@@ -330,12 +351,12 @@ def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> di
         # where it ran (rank 0's device; processes: Lightning's world size)
         "hardware": {**hardware.describe(trainer.strategy.root_device), "processes": trainer.world_size},
     }
+    if parts.module.encoder.saturated_fraction() is not None:  # sensor.exposure=fixed: pixels clipped at the full well
+        summary["saturated_fraction"] = parts.module.encoder.saturated_fraction()
     if getattr(run, "fidelity_auto", None):
         summary["fidelity_auto"] = run.fidelity_auto
-    if run.trainer.verify_preset and run.trainer.verify_preset != run.fidelity.preset:
+    if checks_reference(run):
         summary["verify"] = verify(parts, run, run.trainer.verify_preset)
-    write_json(run_dir / RUN_FILES["summary"], summary)
-    clear_interrupted(run_dir)
     return summary
 
 
@@ -425,6 +446,13 @@ def _best_epoch(trainer) -> int | None:
         return None
 
 
+def checks_reference(run: RunConfig) -> bool:
+    """Whether ``run`` ends with the reference check: :func:`verify` at ``trainer.verify_preset``, where it is
+    another preset than the run's own."""
+    preset = run.trainer.verify_preset
+    return bool(preset) and preset != run.fidelity.preset
+
+
 @torch.no_grad()
 def verify(parts: Parts, run: RunConfig, preset: str) -> dict[str, Any]:
     """Test accuracy of the trained encoder and decoder re-simulated at ``preset`` fidelity.
@@ -433,7 +461,7 @@ def verify(parts: Parts, run: RunConfig, preset: str) -> dict[str, Any]:
     that preset, so a reported number never rests only on an approximation.
     """
     module = parts.module
-    ref = build_encoder(run, fidelity=FidelityConfig(preset=preset))
+    ref = encoder_from_run(run, fidelity=FidelityConfig(preset=preset))
     ref.load_state_dict(module.encoder.state_dict())
     ref.eval()
     module.eval()
@@ -449,7 +477,7 @@ def verify(parts: Parts, run: RunConfig, preset: str) -> dict[str, Any]:
 
 def load_encoder(run: RunConfig, run_dir: Path, which: str = "best"):
     """The run's encoder with the trained parameters of checkpoint ``which``."""
-    encoder = build_encoder(run)
+    encoder = encoder_from_run(run)
     ckpt = read_checkpoint(checkpoint_path(run_dir, which), f"{which} checkpoint")
     state = {k[len("encoder.") :]: v for k, v in ckpt["state_dict"].items() if k.startswith("encoder.")}
     encoder.load_state_dict(state, strict=False)

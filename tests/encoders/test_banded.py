@@ -5,7 +5,9 @@ from __future__ import annotations
 import pytest
 import torch
 
-from optoenc.encoders import banded
+from optoenc.encoders import _banded as banded
+from optoenc.encoders import _operator_apply as apply
+from optoenc.encoders import _operator_build as build
 from optoenc.encoders import imaging as im
 
 DT = torch.float64
@@ -16,7 +18,7 @@ def small_is_large(monkeypatch):
     """The cases here are small; they stand for large ones: no per-block, row-copy or minimum-size overheads."""
     monkeypatch.setattr(banded, "_BLOCK_OVERHEAD", 0)
     monkeypatch.setattr(banded, "_ROW_COPY", 0)
-    monkeypatch.setattr(im, "_MIN_BANDED_MACS", 0)
+    monkeypatch.setattr(build, "_MIN_BANDED_MACS", 0)
 
 
 def band_matrix(m: int, k: int, width: int, slope: float, g: torch.Generator, zero_rows=()) -> torch.Tensor:
@@ -223,22 +225,22 @@ def test_banded_scene_operator_is_the_dense_one_and_the_fine_grid_pipeline(grid,
     calls = []
     real = banded.banded_mm
     monkeypatch.setattr(banded, "banded_mm", lambda a, b, plan=None: calls.append((a.shape, plan.order is not None)) or real(a, b, plan))
-    op = im.scene_operator(psf, ry, rx)
+    op = build.scene_operator(psf, ry, rx)
     assert len(calls) == 2, "the banded build was not taken"
     assert calls[0][0] == (rx.shape[0] * rx.shape[1], rx.shape[2])  # columns first (the cheap layout copy)
     # The row tensor's band restarts at every embedding row: on the canvas its rows are taken sorted.
     assert calls[1][1] == sorts
-    consecutive = im.scene_operator(psf, ry, rx, sort_rows=False)
+    consecutive = build.scene_operator(psf, ry, rx, sort_rows=False)
     assert not any(srt for _, srt in calls[2:])
-    dense = im.scene_operator(psf, ry.detach().clone().requires_grad_(), rx)  # dense path
+    dense = build.scene_operator(psf, ry.detach().clone().requires_grad_(), rx)  # dense path
     assert len(calls) == 4  # a correlation tensor that requires a gradient takes the dense products
     torch.testing.assert_close(op, dense, rtol=1e-12, atol=1e-12)
     torch.testing.assert_close(consecutive, dense, rtol=1e-12, atol=1e-12)
     x = torch.rand(3, 1, *scene, generator=g, dtype=DT)
     ref = im.integrate(im.fft_convolve(im.place(x, grid, height), psf), emb)
-    torch.testing.assert_close(im.apply_operator(op, x), ref, rtol=1e-11, atol=1e-11)
+    torch.testing.assert_close(apply.apply_operator(op, x), ref, rtol=1e-11, atol=1e-11)
     w = torch.randn(3, 2, *emb, generator=g, dtype=DT)
-    (g_band,) = torch.autograd.grad((im.apply_operator(op, x) * w).sum(), psf)
+    (g_band,) = torch.autograd.grad((apply.apply_operator(op, x) * w).sum(), psf)
     (g_ref,) = torch.autograd.grad((ref * w).sum(), psf)
     torch.testing.assert_close(g_band, g_ref, rtol=1e-10, atol=1e-12)
 
@@ -257,9 +259,9 @@ def test_sparse_scene_product_is_the_dense_apply_and_its_gradient(monkeypatch, s
     calls = []
     real = banded.column_banded_mm
     monkeypatch.setattr(banded, "column_banded_mm", lambda *args, **kw: calls.append(1) or real(*args, **kw))
-    out = im.apply_operator(op, x)
+    out = apply.apply_operator(op, x)
     assert calls, "the sparse product was not taken"
-    dense = im.apply_operator(op, x, skip_zeros=False)
+    dense = apply.apply_operator(op, x, skip_zeros=False)
     assert len(calls) == 1
     torch.testing.assert_close(out, dense, rtol=1e-12, atol=1e-12)
     assert bool((out[B - 1] == 0).all())
@@ -268,10 +270,10 @@ def test_sparse_scene_product_is_the_dense_apply_and_its_gradient(monkeypatch, s
     (g2,) = torch.autograd.grad((dense * wgt).sum(), op)
     torch.testing.assert_close(g1, g2, rtol=1e-12, atol=1e-12)
     small = torch.rand(1, 16, 2, 40, 30, dtype=DT, requires_grad=True)  # gradcheck on a 160-row operator
-    assert torch.autograd.gradcheck(lambda o: im.apply_operator(o, x[:3]), (small,), fast_mode=True)
+    assert torch.autograd.gradcheck(lambda o: apply.apply_operator(o, x[:3]), (small,), fast_mode=True)
     xg = x.clone().requires_grad_()  # a scene that is learned (an attack's reconstruction): the dense product
     n = len(calls)
-    im.apply_operator(op, xg)
+    apply.apply_operator(op, xg)
     assert len(calls) == n
 
 
@@ -281,13 +283,13 @@ def test_small_products_stay_dense(monkeypatch, small_is_large):
     calls = []
     real = banded.banded_mm
     monkeypatch.setattr(banded, "banded_mm", lambda *args, **kw: calls.append(1) or real(*args, **kw))
-    monkeypatch.setattr(im, "_MIN_BANDED_MACS", 10**9)
+    monkeypatch.setattr(build, "_MIN_BANDED_MACS", 10**9)
     ry, rx = _canvas_correlations((96, 128), (60, 70), (8, 10), 90.0)
     assert banded.BandPlan.of(rx.reshape(-1, 128), 96).banded
-    op = im.scene_operator(torch.rand(1, 96, 128, dtype=DT), ry, rx)
+    op = build.scene_operator(torch.rand(1, 96, 128, dtype=DT), ry, rx)
     x = torch.zeros(4, 1, 60, 70, dtype=DT)
     x[:, :, :5] = 1
-    im.apply_operator(op, x)
+    apply.apply_operator(op, x)
     assert not calls
 
 
@@ -304,15 +306,15 @@ def test_plan_weighs_the_per_block_overhead_against_the_work_it_saves():
 def test_encoder_region_spans_are_those_of_the_region_tensors():
     # The encoder caches the row spans of its whole correlation tensors and cuts them for a support region;
     # the cut must be the spans of the region's own tensors (else the banded build would miss entries).
-    from optoenc.config import build_encoder, compose
+    from optoenc.config import encoder_from_run, compose
 
     run = compose(names={"encoder": "learned_slm", "decoder": "logistic"},
                   overrides=["sensor.embedding=[6,8]", "fidelity.grid=[48,64]"])
-    enc = build_encoder(run)
+    enc = encoder_from_run(run)
     shape, hpx = (30, 40), enc.object_height_px(None) * 2.5
-    ry, rx, spans = enc._geometry_factors(shape, hpx, "cpu")
+    ry, rx, spans = enc._operators.geometry_factors(enc, shape, hpx, "cpu")
     for region in (None, (3, 17, 5, 33), (0, 30, 39, 40)):
-        (fy, ly), (fx, lx) = enc._region_spans(spans, shape, region)
+        (fy, ly), (fx, lx) = enc._operators._region_spans(spans, shape, region)
         r0, r1, c0, c1 = region or (0, 30, 0, 40)
         for (f, l_), t in (((fy, ly), ry[:, r0:r1]), ((fx, lx), rx[:, c0:c1])):
             ef, el = banded.row_spans(t.reshape(-1, t.shape[-1]))
@@ -406,7 +408,7 @@ def test_canvas_row_operator_applies_as_the_contiguous_one(scenes, monkeypatch, 
     import warnings
 
     warnings.simplefilter("ignore")  # the canvas overfills the field of view: cropping is part of the map
-    monkeypatch.setattr(im, "_ROW_MAJOR_DENSE_WIDTH", 64 if scenes == "dense, wide" else 10**9)
+    monkeypatch.setattr(apply, "_ROW_MAJOR_DENSE_WIDTH", 64 if scenes == "dense, wide" else 10**9)
     g = torch.Generator().manual_seed(10)
     ry, rx = _canvas_correlations((96, 128), (60, 70), (8, 10), 90.0)
     ry = ry.transpose(0, 1).contiguous().transpose(0, 1)  # held (h, a, Hp), as the encoders cache it
@@ -421,15 +423,15 @@ def test_canvas_row_operator_applies_as_the_contiguous_one(scenes, monkeypatch, 
     calls = []
     real = banded.row_runs_mm
     monkeypatch.setattr(banded, "row_runs_mm", lambda m, xs, runs: calls.append(len(xs)) or real(m, xs, runs))
-    op = im.scene_operator(psf, ry, rx)
-    ref = im.scene_operator(psf, ry, rx, row_major=False)
-    assert im.operator_rows(op) is not None and im.operator_rows(ref) is None and ref.is_contiguous()
+    op = build.scene_operator(psf, ry, rx)
+    ref = build.scene_operator(psf, ry, rx, row_major=False)
+    assert apply.operator_rows(op) is not None and apply.operator_rows(ref) is None and ref.is_contiguous()
     torch.testing.assert_close(op, ref, rtol=0, atol=0)  # the same products, only held differently
     wgt = torch.randn(6, 2, 8, 10, generator=g, dtype=DT)
-    out, out_ref = im.apply_operator(op, x), im.apply_operator(ref, x)
+    out, out_ref = apply.apply_operator(op, x), apply.apply_operator(ref, x)
     assert bool(calls) == (scenes != "dense, narrow")
     torch.testing.assert_close(out, out_ref, rtol=1e-12, atol=1e-12)
-    (g1,) = torch.autograd.grad((im.apply_operator(op, x) * wgt).sum(), psf)
+    (g1,) = torch.autograd.grad((apply.apply_operator(op, x) * wgt).sum(), psf)
     (g2,) = torch.autograd.grad((out_ref * wgt).sum(), psf)
     torch.testing.assert_close(g1, g2, rtol=1e-12, atol=1e-12)
     if scenes == "shifted digits":

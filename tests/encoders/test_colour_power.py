@@ -22,7 +22,7 @@ EXACT = 1e-10  # float64 FFT rounding over a 48 x 64 grid stays far below this
 
 
 def _with_weights(enc, weights: torch.Tensor):
-    enc.weights = lambda: weights  # instance override: bypasses the PSF cache
+    enc.displayed_amplitudes = lambda: weights  # instance override: bypasses the PSF cache
     enc._psf_cache = None
     return enc
 
@@ -33,7 +33,7 @@ def _red_rows(enc) -> torch.Tensor:
 
 def test_dimming_one_colour_scales_its_power_and_changes_the_gray_psf():
     enc = FixedSLM(**SMALL)
-    w = enc.weights().detach().to(torch.float64)
+    w = enc.displayed_amplitudes().detach().to(torch.float64)
     a = 0.1  # amplitude factor on every red sub-pixel
     dimmed = torch.where(_red_rows(enc), a * w, w)
     raw0 = _with_weights(FixedSLM(**SMALL), w).compute_psf()
@@ -57,7 +57,7 @@ def test_dimming_one_colour_scales_its_power_and_changes_the_gray_psf():
 
 def test_neutral_density_leaves_the_normalised_psf_unchanged():
     enc = FixedSLM(**SMALL)
-    w = enc.weights().detach().to(torch.float64)
+    w = enc.displayed_amplitudes().detach().to(torch.float64)
     for colour in ("gray", "rgb"):
         kw = {**SMALL, "sensor": {**SMALL["sensor"], "color": colour}}
         p0 = _with_weights(FixedSLM(**kw), w).psf()
@@ -68,7 +68,7 @@ def test_neutral_density_leaves_the_normalised_psf_unchanged():
 def test_rgb_sensor_channels_keep_their_relative_power():
     kw = {**SMALL, "sensor": {**SMALL["sensor"], "color": "rgb"}}
     enc = FixedSLM(**kw)
-    w = enc.weights().detach().to(torch.float64)
+    w = enc.displayed_amplitudes().detach().to(torch.float64)
     raw = _with_weights(enc, w).compute_psf()
     psf = enc.psf()
     ratios = psf.sum(dim=(-2, -1)) / raw.sum(dim=(-2, -1))

@@ -18,10 +18,10 @@ FIXED = ["lens", "diffuser", "coded_aperture", "fixed_slm", "phase_mask"]
 @pytest.mark.parametrize("name", FIXED)
 def test_a_cached_psf_and_operator_follow_the_module_to_another_device(name):
     enc = make_encoder(get_registry("encoder").get(name))
-    assert enc.psf().device.type == "cpu" and enc.operator((28, 28)).device.type == "cpu"  # both now cached
+    assert enc.psf().device.type == "cpu" and enc.operator((28, 28)).tensor().device.type == "cpu"  # both now cached
     enc.to("meta")
     assert enc.device.type == "meta"
-    for build in (enc.psf, lambda: enc.operator((28, 28))):
+    for build in (enc.psf, lambda: enc.operator((28, 28)).tensor()):
         with pytest.raises(RuntimeError, match="meta tensors"):  # rebuilt on meta, not the cached CPU tensor
             build()
 

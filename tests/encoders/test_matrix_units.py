@@ -7,11 +7,13 @@ products of the same rounded factors; and the encoder's choice of path with the 
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 import torch
 
 from optoenc import hardware
-from optoenc.encoders import imaging
+from optoenc.encoders import _operator_apply, _operator_build, imaging
 from optoenc.encoders.slm import LearnedSLM
 
 pytestmark = [pytest.mark.filterwarnings("ignore::optoenc.optics.diagnostics.SamplingWarning"),
@@ -39,13 +41,13 @@ def _reference(psf, ry, rx):
 def test_build_and_apply_backward_passes_are_the_products_adjoints(channels):
     """gradcheck in float64: the hand-written backward passes of the build and the apply are exact."""
     ry, rx = _factors()
-    factors = imaging.dense_factors(ry, rx)
+    factors = _operator_build.dense_factors(ry, rx)
     psf = torch.rand(channels, *ry.shape[2:], rx.shape[2], dtype=torch.float64, requires_grad=True)
     w = rx.shape[1]
-    assert torch.autograd.gradcheck(lambda p: imaging._MatrixUnitOperator.apply(p, *factors, w), (psf,))
+    assert torch.autograd.gradcheck(lambda p: _operator_build._MatrixUnitOperator.apply(p, *factors, w), (psf,))
     op = torch.rand(7, 13, dtype=torch.float64, requires_grad=True)
     x = torch.rand(5, 13, dtype=torch.float64, requires_grad=True)
-    assert torch.autograd.gradcheck(imaging._FlatApply.apply, (op, x))
+    assert torch.autograd.gradcheck(_operator_apply._FlatApply.apply, (op, x))
 
 
 @pytest.mark.parametrize("channels", [1, 3])
@@ -56,13 +58,13 @@ def test_matrix_unit_operator_is_the_operator_in_its_layout(channels):
     gray and per-channel scenes. Without matrix_units the layout is the usual one."""
     ry, rx = _factors()
     psf = torch.rand(channels, ry.shape[2], rx.shape[2], dtype=torch.float64)
-    assert not imaging._matrix_unit_layout(imaging.scene_operator(psf, ry, rx))
-    op = imaging.scene_operator(psf, ry, rx, matrix_units=True)
-    assert imaging._matrix_unit_layout(op) and op.shape == (channels, 4, 5, 9, 11)
+    assert not _operator_apply._matrix_unit_layout(_operator_build.scene_operator(psf, ry, rx))
+    op = _operator_build.scene_operator(psf, ry, rx, matrix_units=True)
+    assert _operator_apply._matrix_unit_layout(op) and op.shape == (channels, 4, 5, 9, 11)
     torch.testing.assert_close(op, _reference(psf, ry, rx), rtol=1e-12, atol=1e-15)
     for c in sorted({1, channels}):
         x = torch.rand(6, c, 9, 11, dtype=torch.float64)
-        torch.testing.assert_close(imaging.apply_operator(op, x), imaging.apply_operator(op.contiguous(), x),
+        torch.testing.assert_close(_operator_apply.apply_operator(op, x), _operator_apply.apply_operator(op.contiguous(), x),
                                    rtol=1e-12, atol=1e-15)
 
 
@@ -73,8 +75,8 @@ def test_bfloat16_build_and_gradient_are_within_two_roundings():
     ry, rx = _factors(scene=(30, 40), grid=(96, 128), out=(6, 8), height=40.0)
     ryb, rxb = ry.to(torch.bfloat16), rx.to(torch.bfloat16)
     psf = torch.rand(1, 96, 128).to(torch.bfloat16).requires_grad_()
-    op = imaging.scene_operator(psf, ryb, rxb, matrix_units=True)
-    assert op.dtype == torch.bfloat16 and imaging._matrix_unit_layout(op)
+    op = _operator_build.scene_operator(psf, ryb, rxb, matrix_units=True)
+    assert op.dtype == torch.bfloat16 and _operator_apply._matrix_unit_layout(op)
     psf64 = psf.detach().double().requires_grad_()
     ref = _reference(psf64, ryb.double(), rxb.double())
     rel = float((op.detach().double() - ref.detach()).norm() / ref.detach().norm())
@@ -105,9 +107,9 @@ def test_encoder_takes_the_matrix_unit_build_for_bfloat16_where_the_cpu_has_unit
     def run(units: bool, **fidelity):
         amx(units)
         enc = LearnedSLM(sensor={"embedding": (6, 8)}, fidelity={"grid": (96, 128), **fidelity})
-        enc.support_regions = False
+        enc._operators.paths = dataclasses.replace(enc._operators.paths, support_regions=False)
         with torch.no_grad():
-            layout = imaging._matrix_unit_layout(enc.operator((30, 40), 0.08))
+            layout = _operator_apply._matrix_unit_layout(enc.operator((30, 40), 0.08).tensor())
         e = enc.measure(x.to(enc.optics_dtype), 0.08)
         (e * g.to(e.dtype)).sum().backward()
         return layout, e.detach().double(), enc.logits.grad.double()
@@ -131,10 +133,10 @@ def test_bfloat16_build_is_the_per_column_products_bit_for_bit(channels):
     layout: every entry is the same sum of ``Hp`` products as a product per embedding column gives (the
     build until session 29, which trained the committed bfloat16 cells), so the operator is equal, not close."""
     ry, rx = _factors(scene=(30, 41), grid=(96, 128), out=(6, 8), height=40.0, dtype=torch.bfloat16)
-    ry2, ry2_t, rx2, rx2_t = imaging.dense_factors(ry, rx)
+    ry2, ry2_t, rx2, rx2_t = _operator_build.dense_factors(ry, rx)
     (a, h, Hp), (b, w, Wp) = ry.shape, rx.shape
     psf = torch.rand(channels, Hp, Wp, generator=torch.Generator().manual_seed(6)).to(torch.bfloat16)
-    op = imaging._MatrixUnitOperator.apply(psf, ry2, ry2_t, rx2, rx2_t, w)
+    op = _operator_build._MatrixUnitOperator.apply(psf, ry2, ry2_t, rx2, rx2_t, w)
     u = (psf.reshape(channels * Hp, Wp) @ rx2_t).view(channels, Hp, b, w)
     per_column = torch.stack([torch.stack([ry2 @ u[c, :, j].contiguous() for j in range(b)]) for c in range(channels)])
     assert op.shape == per_column.shape == (channels, b, a * h, w)

@@ -25,10 +25,10 @@ def _scenes(n=12, seed=0):
 
 def test_one_pattern_is_todays_encoder():
     enc = LearnedSLM(None, **SMALL)
-    # Today's parameterisation: one (rows, cols) logit per sub-pixel from the seeded uniform draw.
-    p = np.random.default_rng(0).uniform(0.0, 1.0, enc.block.shape).clip(0.01, 0.99)
+    # One (rows, cols) logit per sub-pixel, the logit of the seeded uniform draw (fixed_slm's pattern).
+    p = np.random.default_rng(0).uniform(0.0, 1.0, enc.block.shape)
     assert enc.logits.shape == enc.block.shape
-    assert torch.equal(enc.logits.detach(), torch.log(torch.from_numpy(p) / torch.from_numpy(1 - p)))
+    assert torch.equal(enc.logits.detach(), torch.logit(torch.from_numpy(p)))
     x = _scenes()
     torch.manual_seed(5)
     got = enc.measure(x)

@@ -8,7 +8,7 @@ import stat
 import pytest
 
 from optoenc.errors import ConfigError, DataError
-from optoenc.rundir import atomic_write_bytes, new_run_dir
+from optoenc.training.rundir import atomic_write_bytes, new_run_dir
 
 from faultkit import one_line_error, run
 
@@ -32,7 +32,7 @@ def test_atomic_write_gets_the_umask_permissions(tmp_path, umask):
 def test_cache_entries_get_the_umask_permissions(tmp_path):
     import torch
 
-    from optoenc import cache
+    from optoenc.training import cache
 
     old = os.umask(0o022)
     try:

@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from optoenc.callbacks import read_metrics
+from optoenc.training.callbacks import read_metrics
 
 from faultkit import TINY, optoenc_cmd, run
 
@@ -56,7 +56,7 @@ def test_signal_mid_run(tmp_path, sig, code):
 def test_run_markers_say_the_latest_state(tmp_path):
     """A run directory is marked failed or interrupted by its latest stop, and by neither once it completes."""
     from optoenc.errors import TrainingDiverged
-    from optoenc.resume import clear_interrupted, mark_failed, mark_interrupted
+    from optoenc.training.resume import clear_interrupted, mark_failed, mark_interrupted
 
     mark_failed(tmp_path, TrainingDiverged("training loss became nan\nsecond line"), epoch=3)
     failed = json.loads((tmp_path / "failed.json").read_text())

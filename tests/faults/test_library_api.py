@@ -5,15 +5,15 @@ from __future__ import annotations
 import pytest
 import torch
 
-from optoenc.config import build_encoder, compose
+from optoenc.config import encoder_from_run, compose
 from optoenc.encoders.lens import LensConfig
 from optoenc.errors import ConfigError, DataError
-from optoenc.geometry import SceneConfig, SensorConfig
+from optoenc.encoders.geometry import SceneConfig, SensorConfig
 
 
 @pytest.fixture(scope="module")
 def encoder():
-    return build_encoder(compose(names={"encoder": "diffuser"}, overrides=["sensor.embedding=[6,8]"]))
+    return encoder_from_run(compose(names={"encoder": "diffuser"}, overrides=["sensor.embedding=[6,8]"]))
 
 
 @pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf")])

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from optoenc import limits
-from optoenc.config import build_encoder, compose
+from optoenc.config import encoder_from_run, compose
 from optoenc.errors import ConfigError
 
 from faultkit import one_line_error, run
@@ -41,10 +41,10 @@ def test_every_float_setting_refuses_inf():
     import dataclasses
     import typing
 
-    from optoenc.listing import SHARED_SECTIONS
+    from optoenc.config import SECTIONS
     from optoenc.plugins import get_registry
 
-    classes = list(SHARED_SECTIONS().values()) + [
+    classes = list(SECTIONS.values()) + [
         get_registry(k).get(n).Config for k in ("encoder", "decoder", "dataset") for n in get_registry(k).names()
     ]
     checked = 0
@@ -62,10 +62,10 @@ def test_every_float_setting_refuses_inf():
 def test_geometry_that_sees_nothing_is_refused(encoder):
     # d2 = 1e30 magnifies the digit 2.5e30 times: the sensor sees a speck of it and the run trains at chance
     with pytest.raises(ConfigError, match="encoder.d2") as err:
-        build_encoder(compose(names={"encoder": encoder}, overrides=["encoder.d2=1e30"]))
+        encoder_from_run(compose(names={"encoder": encoder}, overrides=["encoder.d2=1e30"]))
     assert "scene.object_height" in str(err.value)
     # the bound: an image up to MAX_OVERFILL times the field of view is still allowed (cropped, with a warning)
-    enc = build_encoder(compose(names={"encoder": encoder}))
+    enc = encoder_from_run(compose(names={"encoder": encoder}))
     fov = enc.geometry.grid[0] * enc.geometry.spacing[0] / enc.magnification  # object-plane field of view, m
     enc.measure(torch.rand(1, 1, 28, 28), height=0.9 * enc.MAX_OVERFILL * fov)
     with pytest.raises(ConfigError):
@@ -80,7 +80,7 @@ def test_grid_bound_is_derived_from_memory():
     if need <= limits.memory_bytes():
         pytest.skip("this machine could hold the grid")
     with pytest.raises(ConfigError, match="GiB") as err:
-        build_encoder(compose(names={"encoder": "coded_aperture"}, overrides=["fidelity.grid=[30000,40000]"]))
+        encoder_from_run(compose(names={"encoder": "coded_aperture"}, overrides=["fidelity.grid=[30000,40000]"]))
     assert err.value.key == "fidelity.grid"
 
 

@@ -7,7 +7,7 @@ import shutil
 import pytest
 import torch
 
-from optoenc.callbacks import read_metrics
+from optoenc.training.callbacks import read_metrics
 
 from optoenc.config import compose
 from optoenc.training import fit
@@ -65,7 +65,7 @@ def test_check_resume_allows_only_safe_keys(tmp_path, override, refused):
     """The contract itself (in-process, every key): what the command above does for its representatives."""
     from optoenc.config import compose
     from optoenc.errors import ConfigError
-    from optoenc.resume import check_resume
+    from optoenc.training.resume import check_resume
 
     names = {"encoder": "diffuser", "decoder": "logistic"}
     old, new = compose(names=names).tree, compose(names=names, overrides=[override]).tree
@@ -96,7 +96,7 @@ def _damage(ckpt, damage):
 @pytest.mark.parametrize("damage", ["delete", "truncate", "garbage"])
 def test_read_checkpoint_refuses_missing_or_corrupt_files(copy_of_trained, damage):
     from optoenc.errors import DataError
-    from optoenc.resume import read_checkpoint
+    from optoenc.training.resume import read_checkpoint
 
     ckpt = copy_of_trained / "checkpoints" / "last.ckpt"
     assert read_checkpoint(ckpt)["epoch"] == 0  # intact: read
@@ -137,7 +137,7 @@ def test_test_under_other_noise_is_allowed(trained):
 
 def test_checkpoint_state_survives_a_moved_folder(tmp_path):
     """Unit: Lightning's ModelCheckpoint drops best_model_score when the folder moved; RunCheckpoint re-roots it."""
-    from optoenc.callbacks import RunCheckpoint
+    from optoenc.training.callbacks import RunCheckpoint
 
     a, b = tmp_path / "a" / "checkpoints", tmp_path / "b" / "checkpoints"
     src = RunCheckpoint(dirpath=a, filename="best", monitor="val_acc", mode="max")
@@ -184,17 +184,19 @@ def test_last_checkpoint_is_the_last_epoch_even_when_validation_stops_improving(
 
 @pytest.mark.filterwarnings("ignore")  # the small grid's sampling warning
 @pytest.mark.parametrize("first,then", [("batch", "epoch"), ("epoch", "batch")])
-def test_a_run_checkpointed_by_one_loop_resumes_under_the_other(tmp_path, first, then):
-    # Cells of a sweep started before trainer.loop existed ran the batch loop; resumed now, 'auto' gives the
-    # epoch loop. The continuation must be the uninterrupted run's: the same weights, bit for bit, and the
-    # same optimiser-step count (Lightning keeps one counter per kind of loop).
+def test_a_run_resumes_under_the_loop_that_wrote_its_checkpoint(tmp_path, first, then):
+    # Both loops compute the same numbers, but Lightning counts the optimiser steps of each in a counter of its own:
+    # a run resumed under the other loop would restart trainer.global_step. The checkpoint names its loop and the
+    # resumed run keeps it, whatever trainer.loop says now: the continuation is the uninterrupted run's, the same
+    # weights bit for bit and the same step count.
     common = [*_TINY_LOOP, "dataset.train_size=450"]
     names = {"encoder": "lens", "decoder": "fcnn"}
     whole = fit(compose(overrides=[*common, "trainer.max_epochs=2", f"trainer.loop={first}"], names=names), tmp_path / "w")
     fit(compose(overrides=[*common, "trainer.max_epochs=1", f"trainer.loop={first}"], names=names), tmp_path / "r")
     resumed = fit(compose(overrides=[*common, "trainer.max_epochs=2", f"trainer.loop={then}"], names=names),
                   tmp_path / "r", resume=True)
-    assert resumed["loop"] == then and resumed["test_acc"] == whole["test_acc"]
+    assert resumed["loop"] == first and resumed["test_acc"] == whole["test_acc"]
     a, b = (torch.load(tmp_path / d / "checkpoints" / "last.ckpt", weights_only=False) for d in ("w", "r"))
     assert (a["epoch"], a["global_step"]) == (b["epoch"], b["global_step"]) == (1, 6)  # 3 batches an epoch
+    assert a["optoenc_loop"] == b["optoenc_loop"] == first
     assert all(torch.equal(a["state_dict"][k], b["state_dict"][k]) for k in a["state_dict"])

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 
-from optoenc import cache
+from optoenc.training import cache
 from optoenc.config import compose
 from optoenc.datasets.idx import read_idx, write_idx
 from optoenc.datasets.mnist import FILES, _bundled_root
@@ -27,7 +27,7 @@ def test_last_training_batch_of_one_with_batchnorm(tmp_path, tiny):
 
 
 def test_loader_drops_only_a_single_example_last_batch():
-    from optoenc.loaders import make_loader
+    from optoenc.training.loaders import make_loader
 
     x, y = torch.zeros(201, 1), torch.zeros(201, dtype=torch.long)
     assert [len(b[1]) for b in make_loader(x, y, 200, shuffle=True)] == [200]

@@ -6,8 +6,8 @@ import lightning as L
 import pytest
 import torch
 
-from optoenc import pictures
-from optoenc.config import build_encoder, compose
+from optoenc.training import pictures
+from optoenc.config import encoder_from_run, compose
 from optoenc.training import fit
 
 from faultkit import TINY, run
@@ -36,7 +36,7 @@ def _image_axes(fig):
 
 
 def test_mask_pictures_have_physical_axes_and_true_aspect(tmp_path, figures):
-    enc = build_encoder(compose(names={"encoder": "coded_aperture"}))
+    enc = encoder_from_run(compose(names={"encoder": "coded_aperture"}))
     mask = enc.mask()
     pictures.save_mask(tmp_path / "m.png", mask, "mask", pictures.mask_spacing(enc, mask))
     (xl, yl, (ext,), aspect) = _image_axes(figures[-1])[0]
@@ -50,7 +50,7 @@ def test_mask_pictures_have_physical_axes_and_true_aspect(tmp_path, figures):
 
 
 def test_slm_mask_in_millimetres_of_the_panel(tmp_path, figures):
-    enc = build_encoder(compose(names={"encoder": "fixed_slm"}))
+    enc = encoder_from_run(compose(names={"encoder": "fixed_slm"}))
     mask = enc.mask()
     pictures.save_mask(tmp_path / "m.png", mask, "mask", pictures.mask_spacing(enc, mask))
     (_, _, (ext,), _) = _image_axes(figures[-1])[0]
@@ -60,7 +60,7 @@ def test_slm_mask_in_millimetres_of_the_panel(tmp_path, figures):
 
 
 def test_psf_picture_has_a_normalised_colour_bar(tmp_path, figures):
-    enc = build_encoder(compose(names={"encoder": "diffuser"}))
+    enc = encoder_from_run(compose(names={"encoder": "diffuser"}))
     pictures.save_psf(tmp_path / "p.png", pictures.spectral_psf(enc), enc.geometry.spacing, "psf")
     labels = [ax.get_ylabel() for ax in figures[-1].axes]
     assert any("normalised" in lab for lab in labels) and any("mm" in lab for lab in labels)

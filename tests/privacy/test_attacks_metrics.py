@@ -10,7 +10,7 @@ import torch
 from optoenc.errors import ConfigError
 from optoenc.privacy import metrics
 from optoenc.privacy.attacks import estimate_operator, train_inverter
-from optoenc.privacy.operators import LinearOperator
+from optoenc.encoders.operator import SceneOperator
 from optoenc.privacy.settings import LearnedConfig
 
 
@@ -57,16 +57,17 @@ def test_plaintext_estimate_converges_to_the_operator():
     assert errs[1] < errs[0]  # more known pairs, better estimate
 
 
-def test_learned_inverter_learns_and_is_seeded():
+def test_learned_inverter_learns_and_is_seeded(one_thread):
     g = torch.Generator().manual_seed(3)
     A = torch.randn(36, 25, generator=g, dtype=torch.float64)  # over-determined: the scene is recoverable
-    op = LinearOperator(A, (1, 5, 5), (1, 6, 6))
+    op = SceneOperator.from_matrix(A, (1, 5, 5), (1, 6, 6))
     scenes = (torch.rand(600, 1, 5, 5, generator=g) > 0.6).float()
     clean = op.forward(scenes.double())
     noise = lambda c, gen: c + 0.01 * torch.randn(c.shape, generator=gen)  # noqa: E731
     cfg = LearnedConfig(pairs=500, epochs=20, hidden=64, lr=1e-2, batch_size=50)
-    m1 = train_inverter(clean[:500], scenes[:500], noise, cfg, seed=0)
-    m2 = train_inverter(clean[:500], scenes[:500], noise, cfg, seed=0)
+    m1, rep = train_inverter(clean[:500], scenes[:500], noise, cfg, seed=0)
+    m2, _ = train_inverter(clean[:500], scenes[:500], noise, cfg, seed=0)
+    assert (rep.pairs, rep.val_pairs, rep.max_epochs) == (500, 50, 20) and 1 <= rep.epochs_run <= 20
     with torch.no_grad():
         out1, out2 = m1(clean[500:]), m2(clean[500:])
     assert torch.equal(out1, out2)  # same seed, same attacker

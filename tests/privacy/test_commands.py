@@ -11,7 +11,7 @@ from PIL import Image
 from optoenc.cli import main
 from optoenc.config import compose
 from optoenc.privacy.report import COLUMNS, read_table
-from optoenc.rundir import atomic_write_text, write_json
+from optoenc.training.rundir import atomic_write_text, write_json
 
 SMALL = ["--sensor.embedding=[12,16]", "--fidelity.preset=fast"]
 
@@ -68,11 +68,11 @@ def test_privacy_sweep_table_and_plot(tmp_path, capsys):
     sweep = tmp_path / "sweep"
     _fake_run(sweep, "lens-12x16", "lens", (12, 16), 0.9, extra)
     _fake_run(sweep, "lens-3x4", "lens", (3, 4), 0.5, extra)
-    args = ["privacy", "--sweep", str(sweep), "--attacks", "admm,learned,plaintext", "--count", "20", "--gallery", "10",
+    args = ["privacy", "--sweep", str(sweep), "--attacks", "admm,learned,learned_conv,plaintext", "--count", "20", "--gallery", "10",
             "--plaintext-n", "50", "--learned-pairs", "200", "--learned-epochs", "1", "--iterations", "20"]
     assert main(args) == 0
     rows = read_table(sweep / "privacy" / "privacy.csv")
-    assert {r["attack"] for r in rows} == {"mean_scene", "admm", "learned", "plaintext"}
+    assert {r["attack"] for r in rows} == {"mean_scene", "admm", "learned", "learned_conv", "plaintext"}
     assert {r["embedding"] for r in rows} == {"12x16", "3x4"} and all(k in rows[0] for k in COLUMNS)
     for r in rows:
         assert 0 <= r["reid_top1"] <= 1 and 0 <= r["readability"] <= 1 and r["count"] == 20
@@ -84,4 +84,19 @@ def test_privacy_sweep_table_and_plot(tmp_path, capsys):
     assert admm["12x16"]["reid_top1"] > floor["12x16"]["reid_top1"] + 0.3
     assert (sweep / "privacy" / "privacy_utility_learned.png").stat().st_size > 0
     assert (sweep / "lens-3x4" / "privacy" / "recon_admm.png").is_file()
-    assert "| lens | 12x16 | 90.0 % | admm" in (sweep / "privacy" / "privacy.md").read_text()
+    md = (sweep / "privacy" / "privacy.md").read_text()
+    assert "| lens | 12x16 | 90.0 % | known_mask | admm | - |" in md
+    # Every row names its threat model and gives its rates' Wilson intervals around the rate.
+    assert {(r["attack"], r["threat_model"]) for r in rows} >= {("admm", "known_mask"), ("learned", "black_box"),
+                                                                ("learned_conv", "black_box"), ("plaintext", "plaintext")}
+    for r in rows:
+        assert r["reid_ci_low"] <= r["reid_top1"] <= r["reid_ci_high"]
+        assert r["readability_ci_low"] <= r["readability"] <= r["readability_ci_high"]
+    # The learned attacker records its budget: 200 pairs (20 held out), 1 epoch at most, 3 seeds (the default).
+    for r in (r for r in rows if r["attack"] in ("learned", "learned_conv")):
+        assert (r["n_pairs"], r["val_pairs"], r["max_epochs"], r["epochs_run"], r["attack_seeds"]) == (200, 20, 1, "1;1;1", 3)
+        assert r["val_loss"] > 0 and len(r["reid_seeds"].split(";")) == 3
+    best = read_table(sweep / "privacy" / "privacy_best.csv")
+    assert [(r["embedding"], r["threat_model"]) for r in best] == [
+        (e, t) for e in ("12x16", "3x4") for t in ("known_mask", "plaintext", "black_box")]
+    assert md.startswith("## Strongest attack per threat model")

@@ -7,7 +7,7 @@ import pytest
 from optoenc.cli import main
 from optoenc.privacy.defence import defence_rows, markdown
 from optoenc.privacy.report import read_table
-from optoenc.rundir import atomic_write_text
+from optoenc.training.rundir import atomic_write_text
 
 pytestmark = pytest.mark.filterwarnings("ignore::optoenc.optics.SamplingWarning")
 
@@ -56,10 +56,14 @@ def test_variable_pattern_attacks_end_to_end(tmp_path, capsys):
     assert main(["privacy", "--encoder", "learned_slm", "--encoder.patterns=2", "--out", str(tmp_path / "k2"), *args, *data]) == 0
     k2 = {r["attack"]: r for r in read_table(tmp_path / "k2" / "privacy.csv")}
     assert set(k2) == {"mean_scene", "admm", "admm_search", "learned", "learned_one"}
+    capsys.readouterr()
     assert main(["privacy", "--encoder", "learned_slm", "--out", str(tmp_path / "k1"), *args, *data]) == 0
     k1 = {r["attack"]: r for r in read_table(tmp_path / "k1" / "privacy.csv")}
-    # One pattern: the index-search and one-pattern attackers are the plain ones, not repeated.
+    # One pattern: the index-search and one-pattern attackers are the plain ones, not repeated, and a note says so.
     assert set(k1) == {"mean_scene", "admm", "learned"}
+    notes = [line for line in capsys.readouterr().err.splitlines() if "note:" in line]
+    assert notes == ["  note: admm_search not run: learned_slm shows one pattern, where it is the same attack as admm",
+                     "  note: learned_one not run: learned_slm shows one pattern, where it is the same attack as learned"]
     # Pattern 0 of the K = 2 camera is the K = 1 pattern, but the captures differ (half through pattern 1).
     assert k1["admm"]["psnr"] != k2["admm"]["psnr"]
     capsys.readouterr()

@@ -9,7 +9,8 @@ import torch
 
 from optoenc.errors import ConfigError
 from optoenc.plugins import get_registry
-from optoenc.privacy.operators import LinearOperator, from_encoder
+from optoenc.encoders.operator import SceneOperator
+from optoenc.privacy.operators import from_encoder
 from optoenc.privacy.tv import differences, differences_adjoint, laplacian
 
 BUILTINS = ["lens", "coded_aperture", "diffuser", "fixed_slm", "learned_slm", "phase_mask", "learned_phase_mask"]
@@ -26,7 +27,7 @@ def _encoder(name, **kw):
     return get_registry("encoder").get(name)(None, **{**SMALL, **kw}) if kw else _built(name)
 
 
-def _dot_gap(op: LinearOperator, seed: int = 0) -> float:
+def _dot_gap(op: SceneOperator, seed: int = 0) -> float:
     g = torch.Generator().manual_seed(seed)
     x = torch.rand(3, *op.scene_shape, generator=g, dtype=torch.float64)
     y = torch.randn(3, *op.embedding_shape, generator=g, dtype=torch.float64)

@@ -9,7 +9,8 @@ from optoenc.datasets.mnist import MNIST
 from optoenc.plugins import get_registry
 from optoenc.privacy import metrics
 from optoenc.privacy.admm import admm, objective
-from optoenc.privacy.operators import LinearOperator, from_encoder
+from optoenc.encoders.operator import SceneOperator
+from optoenc.privacy.operators import from_encoder
 from optoenc.privacy.settings import ADMMConfig
 from optoenc.privacy.tikhonov import pseudo_inverse, tikhonov
 
@@ -17,7 +18,7 @@ from optoenc.privacy.tikhonov import pseudo_inverse, tikhonov
 def _random_op(m=120, shape=(1, 8, 8), seed=0):
     g = torch.Generator().manual_seed(seed)
     n = shape[0] * shape[1] * shape[2]
-    return LinearOperator(torch.randn(m, n, generator=g, dtype=torch.float64) * 1e-5, shape, (1, m, 1)), g
+    return SceneOperator.from_matrix(torch.randn(m, n, generator=g, dtype=torch.float64) * 1e-5, shape, (1, m, 1)), g
 
 
 def test_admm_without_regulariser_solves_nonnegative_least_squares():
@@ -41,7 +42,7 @@ def test_admm_decreases_the_objective_and_is_scale_invariant():
     long = admm(op, y, cfg)
     assert (objective(op, long, y, 1e-3) < objective(op, short, y, 1e-3)).all()
     # the solver works on A/||A||: scaling the camera's throughput by 1000 changes nothing
-    big = LinearOperator(op.matrix * 1e3, op.scene_shape, op.embedding_shape)
+    big = SceneOperator.from_matrix(op.matrix * 1e3, op.scene_shape, op.embedding_shape)
     assert torch.allclose(admm(big, y * 1e3, cfg), long, atol=1e-4)
 
 

@@ -1,11 +1,11 @@
-"""ZCA whitening of the embedding (optoenc.decoders.Whiten): statistics, the map, and why it is there."""
+"""ZCA whitening of the embedding (optoenc_experiments.whiten): statistics, the map, and why it is there."""
 
 from __future__ import annotations
 
 import pytest
 import torch
 
-from optoenc.decoders import FCNN, Logistic, Whiten
+from optoenc_experiments.whiten import Whiten, WhitenedFCNN as FCNN, WhitenedLogistic as Logistic
 
 
 def _correlated(n: int, count: int, seed: int = 0, spread: float = 1e3) -> tuple[torch.Tensor, torch.Tensor]:
@@ -159,3 +159,37 @@ def test_whitening_lets_adam_fit_correlated_features_that_scalar_standardisation
         with torch.no_grad():
             acc[kind] = float((d(x).argmax(1) == y).float().mean())
     assert acc["whiten"] > 0.9 and acc["standardize"] < 0.75, acc
+
+
+def test_the_whitened_decoders_keep_the_builtin_ones_modules_and_numbers():
+    # Same modules in the same order as the built-in decoder: with the same seed, the same weights and logits.
+    from optoenc.decoders import FCNN as Plain
+
+    torch.manual_seed(0)
+    a = FCNN({"embedding_norm": "batchnorm_relu", "hidden": 16}, in_shape=(1, 3, 4), learnable_encoder=True)
+    torch.manual_seed(0)
+    b = Plain({"embedding_norm": "batchnorm_relu", "hidden": 16}, in_shape=(1, 3, 4), learnable_encoder=True)
+    assert a.state_dict().keys() == b.state_dict().keys()
+    x = torch.rand(8, 1, 3, 4)
+    assert torch.equal(a(x), b(x))
+
+
+def test_the_plugin_registers_both_decoders():
+    from optoenc import plugins
+    from optoenc_experiments import plugin
+
+    plugins.reset()
+    try:
+        info = plugins.register_plugin(plugin, name="experiments")
+        assert info.ok, info.error
+        reg = plugins.get_registry("decoder")
+        assert reg.get("whitened_fcnn") is FCNN and reg.get("whitened_logistic") is Logistic
+    finally:
+        plugins.reset()
+
+
+def test_an_unknown_norm_is_refused_naming_the_whitened_choices():
+    from optoenc.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="embedding_norm.*whiten_batchnorm_relu"):
+        Logistic({"embedding_norm": "zca"}, in_shape=(1, 3, 4))

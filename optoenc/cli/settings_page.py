@@ -2,9 +2,9 @@
 
 Usage::
 
-    python -m optoenc.plugins.docs            # rewrite docs/settings.md (atomically)
-    python -m optoenc.plugins.docs --check    # exit 1 if it is stale
-    python -m optoenc.plugins.docs --installed --output my-settings.md   # include installed plugins
+    python -m optoenc.cli.settings_page            # rewrite docs/settings.md (atomically)
+    python -m optoenc.cli.settings_page --check    # exit 1 if it is stale
+    python -m optoenc.cli.settings_page --installed --output my-settings.md   # include installed plugins
 
 The committed reference documents optoenc's built-ins only, so it does not
 depend on which third-party plugins happen to be installed; regenerate it
@@ -30,7 +30,7 @@ SETTINGS_MD = Path(__file__).resolve().parents[2] / "docs" / "settings.md"
 @contextlib.contextmanager
 def _builtins_only() -> Iterator[None]:
     """Temporarily make the process-wide host one that loaded only optoenc's built-ins."""
-    from . import host as plugins
+    from ..plugins import host as plugins
 
     with plugins._lock:
         saved = plugins._host
@@ -44,7 +44,7 @@ def _builtins_only() -> Iterator[None]:
 
 def generate(installed: bool = False) -> str:
     """The text of ``docs/settings.md`` (built-ins only unless ``installed``)."""
-    from .listing import settings_reference
+    from .catalogue import settings_reference
 
     if installed:
         return settings_reference() + "\n"
@@ -53,7 +53,7 @@ def generate(installed: bool = False) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m optoenc.plugins.docs", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="python -m optoenc.cli.settings_page", description=__doc__.splitlines()[0])
     p.add_argument("--output", type=Path, default=SETTINGS_MD, help=f"where to write (default {SETTINGS_MD})")
     p.add_argument("--check", action="store_true", help="do not write; exit 1 if the file is stale")
     p.add_argument("--installed", action="store_true", help="also document the installed third-party plugins")
@@ -66,7 +66,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 0
         diff = difflib.unified_diff(current.splitlines(), text.splitlines(), str(args.output), "generated", lineterm="", n=1)
         print("\n".join(list(diff)[:40]))
-        print(f"{args.output} is stale: run `python -m optoenc.plugins.docs`", file=sys.stderr)
+        print(f"{args.output} is stale: run `python -m optoenc.cli.settings_page`", file=sys.stderr)
         return 1
     if current == text:
         print(f"{args.output} unchanged")

@@ -1,0 +1,101 @@
+"""Learned attackers: early stopping on a validation split, the convolutional decoder's shapes and fit."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from optoenc.encoders.operator import SceneOperator
+from optoenc.privacy.attacks import train_inverter
+from optoenc.errors import ConfigError
+from optoenc.privacy.inverters import ConvInverter, build, device, fit
+from optoenc.privacy.settings import LearnedConfig
+
+NO_NOISE = lambda clean, g: clean  # noqa: E731
+C = 24  # the convolutional decoder's first feature channels in the shape test
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+
+def _val_loss(model, clean, scenes, seed, n_val):
+    """MSE of ``model`` on the validation part that :func:`fit` holds out (its seeded permutation's tail)."""
+    va = torch.randperm(len(clean), generator=torch.Generator().manual_seed(seed))[len(clean) - n_val :]
+    with torch.no_grad():
+        return float(torch.nn.functional.mse_loss(model(clean[va]), scenes[va]))
+
+
+def test_early_stopping_stops_when_validation_rises_and_restores_the_best():
+    """Targets unrelated to the inputs: a wide MLP memorises its 40 training pairs and its validation loss rises
+    once it leaves the mean prediction; training must stop ``patience`` epochs after the best epoch and keep it."""
+    torch.manual_seed(0)
+    g = torch.Generator().manual_seed(5)
+    clean = torch.randn(50, 1, 4, 4, generator=g)
+    scenes = torch.rand(50, 1, 4, 4, generator=g)
+    cfg = LearnedConfig(epochs=200, patience=4, val_fraction=0.2, hidden=256, lr=1e-2, batch_size=10)
+    model = build("mlp", (1, 4, 4), (1, 4, 4), cfg)
+    rep = fit(model, clean, scenes, NO_NOISE, cfg, seed=1)
+    assert (rep.pairs, rep.val_pairs, rep.max_epochs) == (50, 10, 200)
+    assert rep.epochs_run < 200 and rep.epochs_run == rep.best_epoch + cfg.patience  # stopped by patience
+    assert rep.val_loss == min(rep.history) == rep.history[rep.best_epoch - 1]
+    assert rep.history[-1] > rep.val_loss  # validation loss rose after the best epoch
+    # The returned model is the best epoch's, not the last one's (float32 sums, summed vs averaged: 1e-6).
+    assert _val_loss(model, clean, scenes, 1, 10) == pytest.approx(rep.val_loss, rel=1e-5)
+    assert not model.training
+
+
+def test_a_patient_attacker_runs_every_epoch_while_validation_improves():
+    g = torch.Generator().manual_seed(6)
+    A = torch.randn(16, 9, generator=g, dtype=torch.float64)
+    scenes = torch.rand(300, 1, 3, 3, generator=g)
+    clean = SceneOperator.from_matrix(A, (1, 3, 3), (1, 4, 4)).forward(scenes.double()).float()
+    cfg = LearnedConfig(epochs=4, patience=10, hidden=32, lr=3e-3, batch_size=30)
+    _, rep = train_inverter(clean, scenes, NO_NOISE, cfg, seed=0)
+    # A learnable problem, few epochs, large patience: the budget is the limit, and the loss falls.
+    assert rep.epochs_run == 4 and rep.history[-1] < rep.history[0]
+
+
+@pytest.mark.parametrize("shape,feature", [
+    ((1, 28, 28), (C, 7, 7)),  # MNIST: two upsamplings from 7 x 7, no crop
+    ((1, 20, 16), (C, 5, 4)),
+    ((1, 30, 30), (C, 8, 8)),  # 32 x 32 cropped to 30 x 30
+    ((3, 9, 13), (C, 5, 7)),  # colour scene, one upsampling: 10 x 14 cropped to 9 x 13
+    ((1, 64, 48), (C, 8, 6)),  # three upsamplings
+    ((1, 5, 5), (C, 3, 3)),
+])
+def test_learned_conv_output_shape(shape, feature):
+    model = build("conv", (2, 6, 8), shape, LearnedConfig(channels=C))
+    assert isinstance(model, ConvInverter) and model.feature == feature
+    # channels halve with each upsampling, to at least 8
+    ups = sum(isinstance(m, torch.nn.ConvTranspose2d) for m in model.up)
+    assert model.up[-1].in_channels == max(8, C // 2**ups)
+    out = model(torch.randn(3, 2, 6, 8))
+    assert out.shape == (3, *shape) and float(out.detach().min()) > 0 and float(out.detach().max()) < 1  # a sigmoid's range
+
+
+@pytest.mark.parametrize("loss", ["mse", "l1"])
+def test_learned_conv_fits_a_tiny_linear_problem(loss):
+    """An over-determined operator (36 measurements of 25 pixels): the scenes are recoverable, and the
+    convolutional attacker gets far below the mean-scene error on scenes it has not seen (about 0.06 (mse) and
+    0.09 (l1) of it after 15 epochs: 0.25 leaves room for other BLAS orderings)."""
+    g = torch.Generator().manual_seed(3)
+    A = torch.randn(36, 25, generator=g, dtype=torch.float64)
+    op = SceneOperator.from_matrix(A, (1, 5, 5), (1, 6, 6))
+    scenes = torch.rand(600, 1, 5, 5, generator=g)
+    clean = op.forward(scenes.double()).float()
+    noise = lambda c, gen: c + 0.01 * torch.randn(c.shape, generator=gen)  # noqa: E731
+    cfg = LearnedConfig(pairs=500, epochs=15, patience=5, channels=16, lr=1e-2, batch_size=50, loss=loss)
+    model, rep = train_inverter(clean[:500], scenes[:500], noise, cfg, seed=0, kind="conv")
+    with torch.no_grad():
+        out = model(clean[500:])
+    mse = float(((out - scenes[500:]) ** 2).mean())
+    floor = float(((scenes[:500].mean(0) - scenes[500:]) ** 2).mean())
+    assert mse < 0.25 * floor, (mse, floor, rep.history)  # it has learned far more than the mean scene
+
+
+def test_device_choice():
+    assert device(LearnedConfig(device="cpu")) == torch.device("cpu")
+    auto = device(LearnedConfig())
+    assert auto.type == ("cuda" if torch.cuda.is_available() else "cpu")
+    if not torch.cuda.is_available():
+        with pytest.raises(ConfigError, match="cuda"):
+            device(LearnedConfig(device="cuda"))
