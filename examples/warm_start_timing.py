@@ -1,4 +1,4 @@
-"""Time from interpreter start to the first training step (issue: warm-cache start < 5 s).
+"""Time from interpreter start to the first training step (goal: a warm-cache start under 5 s).
 
 Run it twice; the first run fills the embedding cache, the second shows the warm start:
 

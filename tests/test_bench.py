@@ -123,6 +123,7 @@ def coarse_truth(monkeypatch):
     monkeypatch.setattr(truth, "QUADRATURE", 1)
 
 
+@pytest.mark.slow
 def test_run_tiny_rows(tmp_path, coarse_truth):
     kw = dict(digits=4, sweep=False, truth_grid=(96, 128), paper_grid=(48, 64), encode_count=50, steps=1, batch=16,
               truth_dir=tmp_path, kernel_check=False)

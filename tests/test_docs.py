@@ -208,3 +208,13 @@ def test_docs_and_paper_examples_speak_of_the_product_not_its_making():
     files = [*DOCS.rglob("*.md"), *(ROOT / "examples" / "paper").glob("*.yaml"), *(ROOT / "examples" / "paper").glob("*.py")]
     found = [f"{f.relative_to(ROOT)}: {m.group(0)}" for f in files for m in [words.search(f.read_text(encoding="utf-8"))] if m]
     assert not found, f"diary words in {found}"
+
+
+def test_readme_is_short_and_its_test_command_is_what_ci_runs():
+    """The README stays a user's page (<= 120 lines) and its second quick-start command is the one .ci/run runs."""
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    assert len(readme.splitlines()) <= 120
+    commands = re.findall(r"```bash\n(python3 -m venv[^\n]+)\n```", readme)
+    assert len(commands) >= 2 and "optoenc fit" in commands[0] and commands[1].endswith("&& pytest")
+    assert commands[1] in (ROOT / ".ci" / "run").read_text(encoding="utf-8")
+    assert not re.search(r"\b(sessions?|sittings?|MOVED|OPTOENC_MALLOC|--against)\b", readme)

@@ -20,6 +20,7 @@ def test_paper_config_resolves(capsys):
     assert "name: learned_slm" in out and "max_epochs: 50" in out
 
 
+@pytest.mark.slow
 def test_library_usage_example_runs(tmp_path):
     proc = subprocess.run([sys.executable, str(EXAMPLES / "library_usage.py"), str(tmp_path)], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr[-2000:]
@@ -27,6 +28,7 @@ def test_library_usage_example_runs(tmp_path):
     assert (tmp_path / "run" / "summary.json").exists()
 
 
+@pytest.mark.slow
 def test_warm_start_example_reaches_the_first_step(tmp_path, monkeypatch):
     monkeypatch.setenv("OPTOENC_CACHE_DIR", str(tmp_path / "cache"))
     cmd = [sys.executable, str(EXAMPLES / "warm_start_timing.py"), "diffuser"]

@@ -11,7 +11,8 @@ import types
 import pytest
 
 from optoenc import plugins
-from optoenc.plugins import host, listing
+from optoenc.cli import catalogue as listing
+from optoenc.plugins import host
 from optoenc.errors import PluginError
 from optoenc.plugins.hookspecs import hookimpl
 from optoenc.plugins import STRICT_ENV, PluginHost, get_host, get_registry, register_plugin

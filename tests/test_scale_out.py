@@ -68,6 +68,7 @@ def test_a_missing_logger_extra_is_a_config_error(tmp_path, monkeypatch):
         _logger(run, tmp_path)
 
 
+@pytest.mark.slow
 def test_sweep_cells_run_through_submitit(tmp_path):
     pytest.importorskip("submitit")
     spec = tmp_path / "s.yaml"

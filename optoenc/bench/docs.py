@@ -13,7 +13,7 @@ Pareto plot go to ``DIR/bench/``. Blocks:
 * ``benchmarks.md`` ``run``: how the run was made (command, date, wall time,
   peak memory, cores) and its whole console report (load at start and end,
   table, sweep, speed, outcome checks);
-* ``benchmarks.md`` ``targets``: issue 8's outcome targets, met or not;
+* ``benchmarks.md`` ``targets``: the benchmark's targets, met or not;
 * ``fidelity.md`` ``overrides``: each encoder's measured preset overrides
   with the error of the preset against the truth in this run.
 """
@@ -31,7 +31,7 @@ __all__ = ["BLOCKS", "replace_block", "check_docs", "run_block", "targets_block"
 
 #: The generated blocks, per page.
 BLOCKS = {"benchmarks.md": ("run", "targets"), "fidelity.md": ("overrides",)}
-#: Goals of issue 8: the largest error of each preset against the truth.
+#: The benchmark's goals: the largest error of each preset against the truth.
 GOALS = {"reference": 0.0025, "default": 0.01}
 
 

@@ -108,7 +108,7 @@ def format_sweep(rows: Iterable[dict]) -> str:
     return _render(header, lines, left=3)
 
 
-#: The outcome targets (issue 8): reference and default within these of the converged truth; the learned
+#: The benchmark's targets: reference and default within these of the converged truth; the learned
 #: SLM's default step this much faster than the published paper step (goal: SPEED_GOAL), with this much
 #: lower error.
 REFERENCE_TOLERANCE = 0.0025

@@ -126,6 +126,9 @@ class Dataset(Documented):
     name: ClassVar[str] = ""
     Config: ClassVar[type] = DatasetConfig
     num_classes: ClassVar[int] = 0
+    #: True where the data are the user's own files (``dataset.root`` must be set): the registry-wide
+    #: conformance test cannot load it, so the dataset's own tests run the kit on fixtures in its layout.
+    local_files: ClassVar[bool] = False
 
     def __init__(self, config: Any = None):
         self.config = coerce(self.Config, config, "dataset")

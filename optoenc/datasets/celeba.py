@@ -127,6 +127,7 @@ class CelebA(Dataset):
     """
 
     name = "celeba"
+    local_files = True
     Config = CelebAConfig
     #: 2 with ``dataset.attribute``, 1 without (set by :meth:`load`).
     num_classes = 2

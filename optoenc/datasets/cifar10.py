@@ -158,6 +158,7 @@ class CIFAR10(Dataset):
     """
 
     name = "cifar10"
+    local_files = True
     Config = CIFAR10Config
     num_classes = 10
 

@@ -196,6 +196,7 @@ class ImageFolder(Dataset):
     """PNG or JPEG images from a local folder, labelled by class folder (or unlabelled, for reconstruction)."""
 
     name = "image_folder"
+    local_files = True
     Config = ImageFolderConfig
     #: Set per folder by :meth:`load` (the number of class folders; 1 without labels).
     num_classes = 0

@@ -81,8 +81,8 @@ def longest_first(planned: list[PlannedCell], seconds: dict[str, float],
 
     ``shares`` (cell name -> :func:`machine_share`): the cells that hold the whole machine go first, longest
     first among them. Cells start in queue order (:class:`_Budget`), so such a cell queued behind a shared
-    one waits for it to end while the other workers' threads idle: in session 28 a one-thread cell started
-    as a two-thread one ended, and the next two-thread cell held one core idle for its 7.5 min.
+    one waits for it to end while the other workers' threads idle (measured: a one-thread cell started as a
+    two-thread one ended, and the next two-thread cell held one core idle for its 7.5 min).
     """
     def key(p: PlannedCell) -> tuple[bool, float]:
         s = seconds.get(p.cell.name, 0.0)

@@ -86,6 +86,7 @@ def sawtooth_matrix(groups: int, rows: int, k: int, width: int, g: torch.Generat
     return a
 
 
+@pytest.mark.slow
 def test_sorted_plan_follows_a_band_that_restarts_and_is_the_dense_product(small_is_large):
     # A band that climbs back every 20 rows: blocks of consecutive rows straddle the jumps, blocks of rows
     # sorted by their span do not, so the sorted plan is taken, with fewer multiply-adds. Its product and
@@ -379,6 +380,7 @@ def test_bucketed_runs_cover_their_run_with_few_lengths_and_keep_the_product(mon
     assert banded._RUN_QUANTUM[torch.bfloat16] > 1  # the dtype whose products compile kernels per shape
 
 
+@pytest.mark.slow
 def test_regrouped_plan_is_the_same_product_in_the_other_row_order(small_is_large):
     # Rows (g, i) of a sawtooth band, planned sorted, then taken in the order (i, g): the same blocks must
     # give the product of the regrouped matrix (float64: 1e-12), zero rows included, for a consecutive plan too.

@@ -20,6 +20,7 @@ from optoenc.errors import ConfigError
 from faultkit import one_line_error, run
 
 
+@pytest.mark.slow
 def test_last_training_batch_of_one_with_batchnorm(tmp_path, tiny):
     # 201 examples in batches of 200: the last batch holds one example, which BatchNorm cannot normalise
     proc = run("fit", *tiny, "--dataset.train_size=201", "--decoder.embedding_norm=batchnorm_relu")

@@ -63,6 +63,7 @@ def _fake_run(root, name, encoder, emb, acc, extra):
     return d
 
 
+@pytest.mark.slow
 def test_privacy_sweep_table_and_plot(tmp_path, capsys):
     extra = _quick_data(tmp_path)
     sweep = tmp_path / "sweep"

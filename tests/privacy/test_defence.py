@@ -48,6 +48,7 @@ def test_defence_rows_against_the_baseline(tmp_path):
         list(rows.values()))
 
 
+@pytest.mark.slow
 def test_variable_pattern_attacks_end_to_end(tmp_path, capsys):
     data = ["--dataset.train_size=600", "--dataset.val_size=200", "--dataset.test_size=300",
             f"--trainer.cache_dir={tmp_path / 'cache'}", "--sensor.embedding=[6,8]", "--fidelity.preset=fast"]

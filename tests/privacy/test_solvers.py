@@ -21,6 +21,7 @@ def _random_op(m=120, shape=(1, 8, 8), seed=0):
     return SceneOperator.from_matrix(torch.randn(m, n, generator=g, dtype=torch.float64) * 1e-5, shape, (1, m, 1)), g
 
 
+@pytest.mark.slow
 def test_admm_without_regulariser_solves_nonnegative_least_squares():
     op, g = _random_op()
     x = torch.rand(3, 1, 8, 8, generator=g, dtype=torch.float64)
@@ -88,6 +89,7 @@ def test_diffuser_admm_recovers_a_digit_192x256():
     assert (_diffuser_recovers((192, 256), "default") > 20).all()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["pinv", "admm"])
 def test_noise_free_lens_at_full_resolution_returns_the_scene(method):
     # 96x128 lens embedding: the digit spans ~46 sensor pixels, more than its 28 scene pixels, so the

@@ -147,6 +147,7 @@ else:
 """
 
 
+@pytest.mark.slow
 def test_the_reference_check_model_predicts_the_check_it_times(quick, tmp_path):
     # The model: the encoder built at the reference preset and a first call, then the measurement of a sample
     # per example times the test split. Against the check itself (built, then the whole split measured in

@@ -33,6 +33,7 @@ def _metrics(path):
     return [{k: v for k, v in r.items() if "time" not in k} for r in rows]
 
 
+@pytest.mark.slow
 @pytest.mark.skipif("forkserver" not in __import__("multiprocessing").get_all_start_methods(), reason="no forkserver")
 def test_a_forked_cell_trains_as_a_fresh_interpreter_does_and_sees_the_sweeps_environment_now(tmp_path, monkeypatch,
                                                                                              tiny_spec):
@@ -76,6 +77,7 @@ def test_the_cli_refuses_an_unknown_start_in_one_line(tmp_path, capsys, tiny_spe
     assert not (tmp_path / "s").exists()  # refused before anything ran or was written
 
 
+@pytest.mark.slow
 @pytest.mark.skipif("forkserver" not in __import__("multiprocessing").get_all_start_methods(), reason="no forkserver")
 def test_a_sweep_script_without_a_main_guard_runs_once(tmp_path, tiny_spec):
     # multiprocessing re-runs the parent's main script in each child it starts: a user's script calling
