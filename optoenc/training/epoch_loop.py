@@ -122,10 +122,10 @@ def train_epoch(module, batch, batch_size: int, limit: int | float = 1.0) -> dic
         opt.step()
         module.encoder.constrain_()
     if predicted:
-        module.task_metrics["train"]["acc"].update(torch.cat(predicted), torch.cat(labels))
+        module.task_metrics["train_"]["acc"].update(torch.cat(predicted), torch.cat(labels))
     mean = total / count if count else torch.tensor(float("nan"))
     module.log("train_loss_epoch", mean, on_step=False, on_epoch=True, prog_bar=True, batch_size=max(count, 1))
-    module.log("train_acc", module.task_metrics["train"]["acc"].compute(), on_step=False, on_epoch=True, prog_bar=True)
+    module.log("train_acc", module.task_metrics["train_"]["acc"].compute(), on_step=False, on_epoch=True, prog_bar=True)
     return {"loss": mean}
 
 

@@ -81,9 +81,9 @@ class EncoderClassifier(L.LightningModule):
         #: Privacy-aware training (:class:`optoenc.training.adversary.AdversaryObjective`), None: plain.
         self.adversary = adversary
         self.task = task if task is not None else Classification()
-        #: stage -> the task's metrics (``train_acc``, ``val_psnr``, ...), logged once an epoch.
+        #: ``"<stage>_"`` -> the task's metrics (``train_acc``, ``val_psnr``, ...), logged once an epoch.
         self.task_metrics = nn.ModuleDict(
-            {stage: nn.ModuleDict(self.task.make_metrics(stage, decoder)) for stage in ("train", "val", "test")})
+            {f"{stage}_": nn.ModuleDict(self.task.make_metrics(stage, decoder)) for stage in ("train", "val", "test")})
         self._train_totals: tuple = (0.0, 0)  # this epoch's (sum of batch losses x batch sizes, examples)
         self.epoch_loop = epoch_loop
         self.automatic_optimization = epoch_loop is None  # the epoch loop steps the optimiser itself
@@ -139,7 +139,7 @@ class EncoderClassifier(L.LightningModule):
         emb = self.embed(x, augment, batch[2] if len(batch) > 2 else None)
         output = self.decoder(emb)
         loss = self.task.loss(output, y)
-        metrics = self.task_metrics[stage]
+        metrics = self.task_metrics[f"{stage}_"]
         self.task.update_metrics(metrics, output.detach(), y)
         if stage == "train":
             self._log_train(loss.detach(), len(y), batch_idx)
@@ -160,7 +160,7 @@ class EncoderClassifier(L.LightningModule):
 
     def on_train_epoch_start(self) -> None:
         self._train_totals = (0.0, 0)
-        for metric in self.task_metrics["train"].values():
+        for metric in self.task_metrics["train_"].values():
             metric.reset()
 
     def _log_train(self, loss: torch.Tensor, n: int, batch_idx: int) -> None:
@@ -179,7 +179,7 @@ class EncoderClassifier(L.LightningModule):
             return
         if not math.isfinite(trainer.num_training_batches):  # an unsized loader: no last batch to wait for
             self.log("train_loss", loss, on_step=True, on_epoch=True, prog_bar=True, batch_size=n, sync_dist=self._distributed)
-            for name, metric in self.task_metrics["train"].items():
+            for name, metric in self.task_metrics["train_"].items():
                 self.log(f"train_{name}", metric, on_step=False, on_epoch=True, prog_bar=True, batch_size=n)
             return
         if (batch_idx + 1) % max(1, trainer.log_every_n_steps) == 0:
@@ -189,7 +189,7 @@ class EncoderClassifier(L.LightningModule):
             total, count = self._train_totals
             self.log("train_loss_epoch", total / count, on_step=False, on_epoch=True, prog_bar=True, batch_size=count,
                      sync_dist=self._distributed)
-            for name, metric in self.task_metrics["train"].items():
+            for name, metric in self.task_metrics["train_"].items():
                 self.log(f"train_{name}", metric.compute(), on_step=False, on_epoch=True, prog_bar=True)
 
     def validation_step(self, batch, batch_idx):
