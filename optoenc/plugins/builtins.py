@@ -20,7 +20,7 @@ def optoenc_register_encoders(registry):
 @hookimpl
 def optoenc_register_decoders(registry):
     from ..decoders import FCNN, Logistic
-    from ..image_decoders import Tikhonov, UNet, UnrolledADMM
+    from ..decoders.image import Tikhonov, UNet, UnrolledADMM
 
     for cls in (Logistic, FCNN, UNet, Tikhonov, UnrolledADMM):
         registry.add(cls)

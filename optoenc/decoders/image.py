@@ -30,9 +30,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from .decoders import DecoderConfig, ImageDecoder
-from .errors import ConfigError
-from .settings import setting
+from . import DecoderConfig, ImageDecoder
+from ..errors import ConfigError
+from ..settings import setting
 
 __all__ = ["UNetBody", "UNetConfig", "UNet", "PhysicsConfig", "TikhonovConfig", "Tikhonov", "UnrolledADMMConfig",
            "UnrolledADMM", "regularised_solve"]

@@ -1,4 +1,5 @@
-"""Digital decoders: classifiers on the sensor embedding, emitting logits, and the embedding's normalisations.
+"""Digital decoders: classifiers on the sensor embedding, emitting logits, the embedding's normalisations, and the
+base of the image decoders (reconstruction: :mod:`optoenc.decoders.image`).
 
 Both decoders follow REFERENCE §3 exactly; the loss (cross-entropy) is applied to the
 logits by the training module, never a softmax here.
@@ -12,8 +13,8 @@ from typing import Any, ClassVar
 import torch
 from torch import nn
 
-from .errors import ConfigError
-from .settings import Documented, Settings, coerce, setting
+from ..errors import ConfigError
+from ..settings import Documented, Settings, coerce, setting
 
 __all__ = ["DecoderConfig", "FCNNConfig", "Decoder", "ImageDecoder", "Logistic", "FCNN", "EmbeddingBatchNorm",
            "EMBEDDING_NORMS"]
