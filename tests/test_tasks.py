@@ -143,3 +143,13 @@ def test_the_task_and_the_decoder_must_agree(tmp_path):
         build(run)
     with pytest.raises(ConfigError, match="trainer.loop"):
         build(_run(tmp_path, "unet", "diffuser", "trainer.loop=epoch"))
+
+
+def test_the_task_bench_times_both_steps():
+    """`optoenc bench tasks`' measurement, on a batch of 4: both steps timed alternately, the ratio theirs."""
+    from optoenc.bench.speed import format_task_steps, task_steps
+
+    res = task_steps("learned_slm", "unet", threads=1, repeats=2, batch=4)
+    assert len(res["classification_s"]) == len(res["reconstruction_s"]) == 2
+    assert res["ratio_min"] == pytest.approx(res["reconstruction_min"] / res["classification_min"])
+    assert "ratio min" in format_task_steps(res)
