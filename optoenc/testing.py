@@ -1120,12 +1120,17 @@ def _task_check(fn: Callable[..., str | None]) -> Callable[..., str | None]:
 
 @_task_check
 def check_task_documented(cls: type, **setup: Any) -> str | None:
-    """``name``, ``Config`` deriving from ``TaskConfig`` with help on every field, a summary; ``decoder_output`` one of
-    ``DECODER_OUTPUTS``, ``monitor`` a ``(metric, 'min' | 'max')`` pair among the logged metrics."""
+    """``name``, ``Config`` deriving from ``TaskConfig`` with help on every field, a summary; ``features`` among
+    ``TASK_FEATURES``; ``decoder_output`` one of ``DECODER_OUTPUTS``, ``monitor`` a ``(metric, 'min' | 'max')`` pair
+    among the logged metrics."""
     from .tasks import DECODER_OUTPUTS, Task, TaskConfig
 
-    _documented(cls, "task", Task, TaskConfig, ("epoch_loop",))
+    from .tasks import TASK_FEATURES
+
+    _documented(cls, "task", Task, TaskConfig)
     label = _label(cls, "task")
+    unknown = sorted(set(cls.features) - set(TASK_FEATURES))
+    assert not unknown, f"{label}: unknown features {unknown}; known: {', '.join(TASK_FEATURES)}"
     assert cls.decoder_output in DECODER_OUTPUTS, f"{label}: decoder_output {cls.decoder_output!r} not in {DECODER_OUTPUTS}"
     metric, mode = cls.monitor
     assert mode in ("min", "max"), f"{label}: monitor mode {mode!r} must be 'min' or 'max'"

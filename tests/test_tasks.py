@@ -143,6 +143,10 @@ def test_the_task_and_the_decoder_must_agree(tmp_path):
         build(run)
     with pytest.raises(ConfigError, match="trainer.loop"):
         build(_run(tmp_path, "unet", "diffuser", "trainer.loop=epoch"))
+    with pytest.raises(ConfigError, match="privacy.adversary_weight"):  # the features reconstruction does not declare
+        build(_run(tmp_path, "unet", "diffuser", "privacy.adversary_weight=0.1"))
+    with pytest.raises(ConfigError, match="test_every_epoch"):
+        build(_run(tmp_path, "unet", "diffuser", "trainer.test_every_epoch=true"))
 
 
 def test_the_task_bench_times_both_steps():

@@ -12,7 +12,7 @@ module stays generic: it feeds the decoder's output and the batch's target to :m
   lowest ``val_loss``.
 """
 
-from .base import DECODER_OUTPUTS, Task, TaskConfig
+from .base import DECODER_OUTPUTS, TASK_FEATURES, Task, TaskConfig
 from .builtin import Classification, Reconstruction, ReconstructionConfig
 
-__all__ = ["TaskConfig", "Task", "Classification", "ReconstructionConfig", "Reconstruction", "DECODER_OUTPUTS"]
+__all__ = ["TaskConfig", "Task", "Classification", "ReconstructionConfig", "Reconstruction", "DECODER_OUTPUTS", "TASK_FEATURES"]

@@ -9,10 +9,22 @@ import torch
 
 from ..settings import Documented, Settings, coerce
 
-__all__ = ["TaskConfig", "Task", "DECODER_OUTPUTS"]
+__all__ = ["TaskConfig", "Task", "DECODER_OUTPUTS", "TASK_FEATURES"]
 
 #: What a decoder emits (:attr:`optoenc.decoders.Decoder.output`): a vector of logits or an image per example.
 DECODER_OUTPUTS = ("logits", "image")
+
+
+#: Run features a task may declare it works with (:attr:`Task.features`), each with the setting that asks for it:
+#: the fast epoch loop (it counts accuracy), object-plane augmentations (a label does not move with the object; a
+#: scene target would have to), the privacy adversary (its objective subtracts from a classifier's loss) and the
+#: per-epoch test accuracy.
+TASK_FEATURES = {
+    "epoch_loop": "trainer.loop",
+    "augment": "augment",
+    "adversary": "privacy.adversary_weight",
+    "test_every_epoch": "trainer.test_every_epoch",
+}
 
 
 @dataclass
@@ -41,8 +53,8 @@ class Task(Documented):
     monitor: ClassVar[tuple[str, str]] = ("loss", "min")
     #: Test metrics written to summary.json as ``test_<name>``.
     summary_metrics: ClassVar[tuple[str, ...]] = ("loss",)
-    #: Whether ``trainer.loop = 'epoch'`` (precomputed embeddings, one call an epoch) may train this task.
-    epoch_loop: ClassVar[bool] = False
+    #: The run features this task works with, among :data:`TASK_FEATURES` (the run refuses the others by name).
+    features: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, config: Any = None):
         self.config = coerce(self.Config, config, "task")

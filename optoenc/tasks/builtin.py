@@ -23,7 +23,7 @@ class Classification(Task):
     decoder_output = "logits"
     monitor = ("acc", "max")
     summary_metrics = ("acc",)
-    epoch_loop = True
+    features = ("epoch_loop", "augment", "adversary", "test_every_epoch")
 
     def check(self, splits) -> None:
         splits.check_trainable()

@@ -24,6 +24,7 @@ from ..errors import ConfigError, DataError, Interrupted, OptoencError
 from ..encoders.fidelity import FidelityConfig
 from ..plugins import get_registry
 from ..settings import to_dict
+from ..tasks import TASK_FEATURES
 from . import pictures
 from . import adversary, cache
 from .epoch_loop import resolve_loop
@@ -109,10 +110,9 @@ def build(run: RunConfig, progress: bool = False, loop: str | None = None) -> Pa
     either = resolve_loop("auto", **where) == "epoch"  # where the epoch loop applies, so does the batch loop
     loop = loop if either and loop in ("batch", "epoch") else resolve_loop(run.trainer.loop, **where)
     bs, ebs = run.trainer.batch_size, run.trainer.eval_batch_size
-    if not task.epoch_loop and loop == "epoch":
+    if "epoch_loop" not in task.features and loop == "epoch":
         if run.trainer.loop == "epoch":
-            raise ConfigError("trainer.loop", "epoch", f"applies to classification only, not to the {task.name} task; "
-                              "use 'batch' or 'auto'")
+            raise ConfigError("trainer.loop", "epoch", f"does not apply to the {task.name} task; use 'batch' or 'auto'")
         loop = "batch"
     data = {k: (split.images, task.target(split)) for k, split in
             (("train", splits.train), ("val", splits.val), ("test", splits.test))}
@@ -207,15 +207,13 @@ def _check_task(run: RunConfig, task) -> None:
                 if getattr(get_registry("decoder").get(n), "output", "logits") == task.decoder_output]
         raise ConfigError("decoder", run.names["decoder"], f"emits {output}, the {task.name} task needs {task.decoder_output}"
                           f" (decoders: {', '.join(fits) or 'none'})")
-    if task.name != "classification":
-        if run.augment:
-            raise ConfigError("augment", ",".join(run.augment), f"the {task.name} task compares with the dataset's "
-                              "scenes: no augmentations")
-        if run.privacy.adversary_weight:
-            raise ConfigError("privacy.adversary_weight", run.privacy.adversary_weight,
-                              f"must be 0 for the {task.name} task (the adversary objective is classification's)")
-        if run.trainer.test_every_epoch:
-            raise ConfigError("trainer.test_every_epoch", True, "measures test accuracy: classification only")
+    asked = {"augment": ",".join(run.augment) if run.augment else None,
+             "adversary": run.privacy.adversary_weight or None,
+             "test_every_epoch": True if run.trainer.test_every_epoch else None}
+    for feature, value in asked.items():
+        if value is not None and feature not in task.features:
+            raise ConfigError(TASK_FEATURES[feature], value, f"does not apply to the {task.name} task (it works with: "
+                              f"{', '.join(task.features) or 'none of the optional features'})")
 
 
 def _encode(encoder, images, batch_size, progress, split):
@@ -312,7 +310,7 @@ def _pictures(parts: Parts, run: RunConfig, run_dir: Path, tag: str) -> None:
             finally:
                 decoder.train(training)
             for stem, rows in task.pictures(x, emb, out).items():  # the task's own pictures, if any
-                    pictures.save_rows(pic / f"{stem}.png", rows, f"{task.name}: {enc.name} + {run.names['decoder']}")
+                pictures.save_rows(pic / f"{stem}.png", rows, f"{task.name}: {enc.name} + {run.names['decoder']}")
 
 
 def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> dict[str, Any]:
