@@ -89,9 +89,9 @@ def build(run: RunConfig, progress: bool = False, loop: str | None = None) -> Pa
         run.fidelity, run.fidelity_auto = resolve(run, root=run.trainer.cache_dir)
     torch.manual_seed(run.seed)
     task = task_of(run)
+    _check_task(run, task)  # before the data is read
     splits = get_registry("dataset").get(run.names["dataset"])(run.dataset).load()
     task.check(splits)  # val_size = 0 used to train with NaN validation and leave no best.ckpt
-    _check_task(run, task)
     encoder = encoder_from_run(run)
     augs = [get_registry("augmentation").get(a)(cfg) for a, cfg in run.augment.items()]
     decoder = get_registry("decoder").get(run.names["decoder"])(
