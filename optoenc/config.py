@@ -6,6 +6,7 @@ A run config has one section per settings group::
     encoder: {name: learned_slm, d2: 0.004, ...}   # the encoder's Config fields (or just `encoder: learned_slm`)
     decoder: {name: fcnn, hidden: 800, ...}
     dataset: {name: mnist, val_size: 5000, ...}
+    task: {name: classification}                   # or reconstruction (task.loss: mse | l1)
     augment: {shift: {...}, rotate: {...}}         # enabled augmentations, in order
     scene / sensor / fidelity / trainer / output / privacy: {...}
 
@@ -166,7 +167,7 @@ class AdversaryConfig(Settings):
 
 
 #: The one table of default plugin names.
-DEFAULTS = {"encoder": "learned_slm", "decoder": "fcnn", "dataset": "mnist"}
+DEFAULTS = {"encoder": "learned_slm", "decoder": "fcnn", "dataset": "mnist", "task": "classification"}
 
 #: Sections whose schema is fixed (not chosen by a plugin name): the one table of them.
 SECTIONS: dict[str, type] = {
@@ -179,7 +180,7 @@ SECTIONS: dict[str, type] = {
 }
 #: The sections an encoder is built from (its own settings, then the shared ones it reads).
 ENCODER_SECTIONS = ("encoder", "scene", "sensor", "fidelity")
-_PLUGIN_SECTIONS = ("encoder", "decoder", "dataset")
+_PLUGIN_SECTIONS = ("encoder", "decoder", "dataset", "task")
 
 
 @dataclass
@@ -202,6 +203,8 @@ class RunConfig:
     fidelity_auto: Optional[dict] = None
     #: Privacy-aware training (section ``privacy``, :mod:`optoenc.training.adversary`); off by default.
     privacy: AdversaryConfig = dataclasses.field(default_factory=AdversaryConfig)
+    #: The task's settings (section ``task``, :mod:`optoenc.tasks`; its name in ``names["task"]``).
+    task: Any = None
 
     def to_yaml(self) -> str:
         return to_yaml(self.tree)
@@ -361,7 +364,7 @@ def compose(
         file_configs: parsed YAML configs, merged in order (later wins).
         overrides: dotted ``key=value`` strings (``encoder.d2=4e-3``).
         names: plugin names chosen on the command line (``encoder``,
-            ``decoder``, ``dataset``); they override the files.
+            ``decoder``, ``dataset``, ``task``); they override the files.
         augment: augmentation names to enable (overrides the files).
         seed: the run seed (overrides the files).
 

@@ -1,7 +1,7 @@
-"""Conformance kits: the checks every registered encoder, decoder, dataset and augmentation passes.
+"""Conformance kits: the checks every registered encoder, decoder, dataset, augmentation and task passes.
 
 One kit per plugin kind (:data:`KITS`): ``encoder``, ``decoder``, ``dataset``,
-``augmentation``. optoenc runs every kit over every registered name
+``augmentation``, ``task``. optoenc runs every kit over every registered name
 (``tests/test_conformance.py``), and plugin authors reuse them for their own
 classes, either as plain functions::
 
@@ -20,7 +20,7 @@ the kit's list of checks::
         setup = {"fidelity": {"grid": (48, 64)}}
 
 (``DecoderConformance`` / ``decoder_cls``, ``DatasetConformance`` /
-``dataset_cls``, ``AugmentationConformance`` / ``augmentation_cls`` alike.)
+``dataset_cls``, ``AugmentationConformance`` / ``augmentation_cls``, ``TaskConformance`` / ``task_cls`` alike.)
 
 Every check takes the class plus an optional small ``setup`` (its keys per
 kit: :attr:`Kit.setup_keys`) and raises ``AssertionError`` naming the class
@@ -79,6 +79,8 @@ __all__ = [
     "DecoderConformance",
     "DatasetConformance",
     "AugmentationConformance",
+    "TaskConformance",
+    "check_task",
 ]
 
 #: The one tolerance table of the kits: relative to the largest magnitude compared, unless noted.
@@ -662,9 +664,43 @@ def _decoder_setup(setup: Mapping[str, Any]) -> tuple[dict, tuple, int]:
     return _as_dict(setup.get("config")), shapes, int(setup.get("num_classes", 10))
 
 
+#: Output ``(S, h, w)`` of an image decoder in the kit (the scene of a reconstruction).
+IMAGE_OUT_SHAPE = (1, 12, 12)
+
+
+def _is_image(cls: type) -> bool:
+    return getattr(cls, "output", "logits") == "image"
+
+
+def _kit_encoder(in_shape):
+    """A small fixed encoder whose output is ``in_shape`` (what a physics-informed decoder reads)."""
+    from .config import build_encoder
+
+    C, a, b = (int(v) for v in in_shape)
+    return build_encoder("diffuser", sensor={"embedding": [a, b], "color": "gray" if C == 1 else "rgb"},
+                         fidelity={"preset": "fast"})
+
+
 def make_decoder(cls: type, in_shape=(1, 6, 8), num_classes: int = 10, learnable_encoder: bool = False, config=None):
-    """Instantiate decoder ``cls`` as the framework does (keyword arguments from the encoder and the dataset)."""
+    """Instantiate decoder ``cls`` as the framework does (keyword arguments from the encoder and the dataset; an
+    image decoder gets ``out_shape`` :data:`IMAGE_OUT_SHAPE` and, where it reads one, a small encoder)."""
+    if _is_image(cls):
+        enc = _kit_encoder(in_shape) if getattr(cls, "needs_encoder", False) else None
+        return cls(config or None, in_shape=tuple(in_shape), out_shape=IMAGE_OUT_SHAPE, encoder=enc,
+                   learnable_encoder=learnable_encoder)
     return cls(config or None, in_shape=tuple(in_shape), num_classes=num_classes, learnable_encoder=learnable_encoder)
+
+
+def _out_shape(cls: type, k: int) -> tuple[int, ...]:
+    return IMAGE_OUT_SHAPE if _is_image(cls) else (k,)
+
+
+def _decoder_loss(cls: type, out, k: int):
+    import torch
+
+    if _is_image(cls):
+        return (out - 0.5).pow(2).mean()
+    return torch.nn.functional.cross_entropy(out, torch.arange(len(out)) % k)
 
 
 def _embeddings(n: int, shape: tuple[int, ...], seed: int = 0):
@@ -708,7 +744,7 @@ def check_decoder_config_roundtrip(cls: type, **setup: Any) -> str | None:
 @_decoder_check
 def check_decoder_shapes(cls: type, **setup: Any) -> str | None:
     """Every embedding shape from 1 x 1 up, both normalisations (fixed / learned encoder), train and eval mode:
-    finite logits ``(B, num_classes)``; a single example in eval mode."""
+    finite logits ``(B, num_classes)`` (an image decoder: ``(B, *IMAGE_OUT_SHAPE)``); a single example in eval mode."""
     import torch
 
     config, shapes, k = _decoder_setup(setup)
@@ -721,7 +757,8 @@ def check_decoder_shapes(cls: type, **setup: Any) -> str | None:
                 with torch.no_grad():
                     out = dec(_embeddings(n, shape))
                 where = f"in_shape {shape}, learnable_encoder={learnable}, {mode} mode, batch {n}"
-                assert tuple(out.shape) == (n, k), f"{label}: {where}: logits shape {tuple(out.shape)}, expected {(n, k)}"
+                want = (n, *_out_shape(cls, k))
+                assert tuple(out.shape) == want, f"{label}: {where}: output shape {tuple(out.shape)}, expected {want}"
                 assert torch.isfinite(out).all(), f"{label}: {where}: non-finite logits"
     return None
 
@@ -738,8 +775,7 @@ def check_decoder_gradients(cls: type, **setup: Any) -> str | None:
         dec = make_decoder(cls, shape, k, True, config)
         dec.train()
         x = _embeddings(4, shape).requires_grad_(True)
-        labels = torch.arange(4) % k
-        torch.nn.functional.cross_entropy(dec(x), labels).backward()
+        _decoder_loss(cls, dec(x), k).backward()
         params = {n: p for n, p in dec.named_parameters() if p.requires_grad}
         assert params, f"{label}: in_shape {shape}: no trainable parameters"
         missing = sorted(n for n, p in params.items() if p.grad is None)
@@ -760,6 +796,8 @@ def check_decoder_standardize(cls: type, **setup: Any) -> str | None:
     import torch
 
     config, shapes, k = _decoder_setup(setup)
+    if getattr(cls, "needs_encoder", False):
+        return "a physics-informed decoder reads the raw measurement (no standardisation)"
     shape = shapes[-1]
     dec = make_decoder(cls, shape, k, False, {**config, "embedding_norm": "standardize"}).eval()
     x, (m, sd), (a, b) = _embeddings(4, shape), (2.0, 0.8), (7.0, 3.0)
@@ -1045,6 +1083,140 @@ AUGMENTATION_CHECKS: dict[str, Callable[..., str | None]] = {
 }
 
 
+# --------------------------------------------------------------------------- tasks
+def _task_data(cls: type, n: int = 6):
+    """Small splits (``n`` gray 12 x 12 scenes of 2 classes each) and a perfect and a poor decoder output."""
+    import torch
+
+    from .datasets.base import Split, Splits
+
+    g = torch.Generator().manual_seed(0)
+
+    def split(seed: int) -> Split:
+        return Split(torch.rand(n, 1, 12, 12, generator=g), torch.arange(n) % 2)
+
+    splits = Splits(split(0), split(1), split(2), num_classes=2)
+    task = cls()
+    target = task.target(splits.val)
+    if task.decoder_output == "logits":
+        good = torch.nn.functional.one_hot(target, 2).float() * 10.0
+        poor = torch.zeros(n, 2)
+    else:
+        good = target.float().clone()
+        poor = torch.full_like(good, 0.5)
+    return task, splits, target, good, poor
+
+
+def _task_check(fn: Callable[..., str | None]) -> Callable[..., str | None]:
+    @functools.wraps(fn)
+    def wrapper(cls: type, **setup: Any) -> str | None:
+        bad = sorted(set(setup) - {"config"})
+        if bad:
+            raise TypeError(f"unknown setup key(s) {bad}; allowed: config")
+        return fn(cls, **setup)
+
+    return wrapper
+
+
+@_task_check
+def check_task_documented(cls: type, **setup: Any) -> str | None:
+    """``name``, ``Config`` deriving from ``TaskConfig`` with help on every field, a summary; ``features`` among
+    ``TASK_FEATURES``; ``decoder_output`` one of ``DECODER_OUTPUTS``, ``monitor`` a ``(metric, 'min' | 'max')`` pair
+    among the logged metrics."""
+    from .tasks import DECODER_OUTPUTS, Task, TaskConfig
+
+    from .tasks import TASK_FEATURES
+
+    _documented(cls, "task", Task, TaskConfig)
+    label = _label(cls, "task")
+    unknown = sorted(set(cls.features) - set(TASK_FEATURES))
+    assert not unknown, f"{label}: unknown features {unknown}; known: {', '.join(TASK_FEATURES)}"
+    assert cls.decoder_output in DECODER_OUTPUTS, f"{label}: decoder_output {cls.decoder_output!r} not in {DECODER_OUTPUTS}"
+    metric, mode = cls.monitor
+    assert mode in ("min", "max"), f"{label}: monitor mode {mode!r} must be 'min' or 'max'"
+    assert metric in cls.summary_metrics, f"{label}: the monitored metric {metric!r} must be among summary_metrics"
+    return None
+
+
+@_task_check
+def check_task_config_roundtrip(cls: type, **setup: Any) -> str | None:
+    """``Config -> to_dict -> Config(**dict)`` and omegaconf YAML give back an equal config."""
+    _config_roundtrip(cls, "task", _as_dict(setup.get("config")), lambda plain: cls(plain))
+    return None
+
+
+@_task_check
+def check_task_loss(cls: type, **setup: Any) -> str | None:
+    """One target per example; the loss is a finite scalar, lower for the perfect output than for a poor one, and
+    its gradient reaches the decoder's output."""
+    import torch
+
+    task, splits, target, good, poor = _task_data(cls)
+    label = _label(cls, "task")
+    assert len(target) == len(splits.val.labels), f"{label}: target() gives {len(target)} rows for {len(splits.val.labels)} examples"
+    out = poor.clone().requires_grad_(True)
+    loss = task.loss(out, target)
+    assert loss.dim() == 0 and torch.isfinite(loss), f"{label}: the loss must be a finite scalar, got {loss}"
+    loss.backward()
+    assert out.grad is not None and float(out.grad.abs().max()) > 0, f"{label}: no gradient reaches the output"
+    assert float(task.loss(good, target)) < float(loss.detach()), f"{label}: the perfect output's loss is not lower than a poor one's"
+    return None
+
+
+@_task_check
+def check_task_metrics(cls: type, **setup: Any) -> str | None:
+    """Validation metrics finite, and the monitored one better for the perfect output than for a poor one (where
+    it is not the loss); reference scores give every ``test_<metric>`` of ``summary_metrics`` but the loss."""
+    import math
+    from types import SimpleNamespace
+
+    task, splits, target, good, poor = _task_data(cls)
+    label = _label(cls, "task")
+    dec = SimpleNamespace(num_classes=splits.num_classes)
+    values = {}
+    for name, out in (("good", good), ("poor", poor)):
+        metrics = task.make_metrics("val", dec)
+        task.update_metrics(metrics, out, target)
+        values[name] = {k: float(m.compute()) for k, m in metrics.items()}
+        assert all(not math.isnan(v) for v in values[name].values()), f"{label}: NaN metrics {values[name]}"
+    metric, mode = task.monitor
+    if metric != "loss":
+        g, p = values["good"][metric], values["poor"][metric]
+        assert (g > p) if mode == "max" else (g < p), f"{label}: {metric} {g} (perfect) not better than {p} (poor)"
+    scores = task.reference_scores([good[:3], good[3:]], [target[:3], target[3:]])
+    want = {f"test_{m}" for m in task.summary_metrics if m != "loss"}
+    assert want <= set(scores), f"{label}: reference_scores gave {sorted(scores)}, expected {sorted(want)}"
+    return None
+
+
+@_task_check
+def check_task_pictures(cls: type, **setup: Any) -> str | None:
+    """``pictures()`` gives file stems -> rows of ``(title, (N, C, h, w))`` images, one per example."""
+    import torch
+
+    task, splits, target, good, poor = _task_data(cls)
+    label = _label(cls, "task")
+    x = splits.val.images
+    pics = task.pictures(x, torch.rand(len(x), 1, 4, 5), good)
+    assert isinstance(pics, dict), f"{label}: pictures() must return a dict"
+    for stem, rows in pics.items():
+        assert re.match(r"^[a-z][a-z0-9_]*$", stem), f"{label}: picture name {stem!r} is not a plain file stem"
+        for title, images in rows:
+            assert isinstance(title, str) and images.dim() == 4 and len(images) == len(x), (
+                f"{label}: picture {stem!r} row {title!r}: expected ({len(x)}, C, h, w) images")
+    return None
+
+
+#: Task check name -> function.
+TASK_CHECKS: dict[str, Callable[..., str | None]] = {
+    "documented": check_task_documented,
+    "config_roundtrip": check_task_config_roundtrip,
+    "loss": check_task_loss,
+    "metrics": check_task_metrics,
+    "pictures": check_task_pictures,
+}
+
+
 # --------------------------------------------------------------------------- the kits
 #: Plugin kind -> its kit (the kinds of :data:`optoenc.plugins.registry.KINDS`).
 KITS: dict[str, Kit] = {
@@ -1052,6 +1224,7 @@ KITS: dict[str, Kit] = {
     "decoder": Kit("decoder", "decoder_cls", DECODER_CHECKS, _DECODER_KEYS),
     "augmentation": Kit("augmentation", "augmentation_cls", AUGMENTATION_CHECKS, ("config",)),
     "dataset": Kit("dataset", "dataset_cls", DATASET_CHECKS, ("config", "variant")),
+    "task": Kit("task", "task_cls", TASK_CHECKS, ("config",)),
 }
 
 
@@ -1082,3 +1255,9 @@ EncoderConformance = KITS["encoder"].conformance_class("EncoderConformance")
 DecoderConformance = KITS["decoder"].conformance_class("DecoderConformance")
 DatasetConformance = KITS["dataset"].conformance_class("DatasetConformance")
 AugmentationConformance = KITS["augmentation"].conformance_class("AugmentationConformance")
+TaskConformance = KITS["task"].conformance_class("TaskConformance")
+
+
+def check_task(cls: type, *, checks: list[str] | None = None, **setup: Any) -> dict[str, str]:
+    """Run the task kit on ``cls``: ``setup`` holds ``config``. See :meth:`Kit.run`."""
+    return KITS["task"].run(cls, checks=checks, **setup)

@@ -50,8 +50,8 @@ def test_losses_are_reduced_over_the_processes_only_when_there_are_several(world
     module.logged = []
     module._trainer = SimpleNamespace(world_size=world, num_training_batches=1, log_every_n_steps=1)
     x, y = torch.rand(6, 1, 3, 4), torch.randint(0, 10, (6,))
-    module._step((x, y), module.train_acc, "train", augment=True, batch_idx=0)
-    module._step((x, y), module.val_acc, "val", augment=False)
+    module._step((x, y), "train", augment=True, batch_idx=0)
+    module._step((x, y), "val", augment=False)
     losses = {name: kw for name, kw in module.logged if "loss" in name}
     assert set(losses) == {"train_loss_step", "train_loss_epoch", "val_loss"}
     assert all(kw.get("sync_dist", False) == (world > 1) for kw in losses.values()), losses

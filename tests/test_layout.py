@@ -44,6 +44,7 @@ LAYERS: dict[str, int] = {
     # 3. the plugin kinds and their built-ins
     "optoenc.encoders": 3,
     "optoenc.decoders": 3,
+    "optoenc.tasks": 3,
     "optoenc.datasets": 3,
     "optoenc.augment": 3,
     # 4. the plugin host

@@ -188,7 +188,7 @@ def test_a_plugin_written_from_the_page_trains_through_the_cli(tmp_path, monkeyp
         assert main(argv) == 0
         (run_dir,) = tmp_path.iterdir()
         summary = json.loads((run_dir / "summary.json").read_text())
-        assert summary["names"] == {"encoder": "zone_plate", "decoder": "small_cnn", "dataset": "bars"}
+        assert summary["names"] == {"encoder": "zone_plate", "decoder": "small_cnn", "dataset": "bars", "task": "classification"}
         assert 0.0 <= summary["test_acc"] <= 1.0  # one epoch of 80 images: a smoke test, not a benchmark
         assert (run_dir / "pictures" / "mask_final.png").is_file()  # the mask() hook draws the zone plate
     finally:

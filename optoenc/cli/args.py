@@ -61,6 +61,8 @@ def run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--encoder", help="optical encoder (see `optoenc encoders`)")
     p.add_argument("--decoder", help="digital decoder (see `optoenc decoders`)")
     p.add_argument("--dataset", help="dataset (see `optoenc datasets`)")
+    p.add_argument("--task", help="what the decoder is trained for: classification (default) or reconstruction "
+                   "(see `optoenc tasks`)")
     p.add_argument("--augment", help="comma-separated augmentations (see `optoenc augmentations`); '' for none")
     p.add_argument("--seed", type=int, help="run seed")
     p.add_argument("--print-config", action="store_true", help="print the resolved config and exit")
@@ -87,7 +89,7 @@ def compose(args: argparse.Namespace, extra: Sequence[str]):
     """The :class:`~optoenc.config.RunConfig` of the parsed options (``--config``, ``--encoder``, ...) and overrides."""
     from ..config import compose as compose_run, load_yaml
 
-    plugins = {k: getattr(args, k, None) for k in ("encoder", "decoder", "dataset")}
+    plugins = {k: getattr(args, k, None) for k in ("encoder", "decoder", "dataset", "task")}
     files = [load_yaml(c) for c in getattr(args, "config", [])]
     augment = None if getattr(args, "augment", None) is None else [a.strip() for a in args.augment.split(",")]
     return compose_run(files, split_overrides(extra), plugins, augment, getattr(args, "seed", None))

@@ -72,6 +72,17 @@ def add_parsers(sub) -> None:
     _speed_options(s)
     command(s, _quiet(_speed))
 
+    t = benches.add_parser(
+        "tasks", help="a reconstruction training step beside the classification step",
+        description="One encoder's training step for reconstruction (a reconstruction decoder, MSE) and for "
+        "classification (FCNN, cross-entropy) at the default preset and a 24 x 32 embedding, timed alternately; "
+        "prints both and their ratio.")
+    t.add_argument("--encoder", default="learned_slm", help="the encoder timed (default learned_slm)")
+    t.add_argument("--decoder", default="unet", help="the reconstruction decoder (default unet)")
+    t.add_argument("--batch", type=int, default=200, help="examples per step")
+    _timing(t, 5)
+    command(t, _quiet(_tasks))
+
     a = benches.add_parser(
         "auto", help="the cheapest measured setting meeting an error tolerance",
         description="The cheapest fidelity setting of one encoder whose embedding error against the truth meets "
@@ -282,6 +293,22 @@ def _loop(args, extra) -> int:
     with _Bar() as bar:
         rows = loop.compare(epochs=args.epochs, repeats=args.repeats, threads=threads, progress=bar)
     print(loop.format_table(rows, threads))
+    print(load_line("end"))
+    return 0
+
+
+def _tasks(args, extra) -> int:
+    from ..bench import speed
+    from ..bench.machine import load_line
+
+    if args.repeats < 1 or args.threads < 1 or args.batch < 2:
+        raise ConfigError("--repeats/--threads/--batch", (args.repeats, args.threads, args.batch),
+                          "must be >= 1, >= 1 and >= 2")
+    print(load_line("start"))
+    with _Bar() as bar:
+        res = speed.task_steps(args.encoder, args.decoder, threads=args.threads, repeats=args.repeats,
+                               batch=args.batch, progress=bar)
+    print(speed.format_task_steps(res))
     print(load_line("end"))
     return 0
 

@@ -100,9 +100,13 @@ def cmd_fit(args: argparse.Namespace, extra) -> int:
         remove_if_empty(run_dir)  # a start that failed leaves no stub directory behind
     if not _rank_zero():
         return 0
-    line = f"val_acc {summary['val_acc']:.4f}  test_acc {summary['test_acc']:.4f}"
+    if "val_acc" in summary:
+        line = f"val_acc {summary['val_acc']:.4f}  test_acc {summary['test_acc']:.4f}"
+    else:  # another task: its selection metric, then its test metrics
+        line = "  ".join(f"{k} {v:.4f}" for k, v in summary.items()
+                         if k.startswith(("val_", "test_")) and isinstance(v, float))
     if "verify" in summary:
-        line += f"  test_acc@{summary['verify']['preset']} {summary['verify']['test_acc']:.4f}"
+        line += "".join(f"  {k}@{summary['verify']['preset']} {v:.4f}" for k, v in summary["verify"].items() if k != "preset")
     print(f"{line}  ({summary['wall_time_s']:.0f} s)  -> {run_dir}")
     return 0
 

@@ -81,14 +81,14 @@ class Splits:
             if images.is_floating_point() and len(images) and not bool(torch.isfinite(images).all()):
                 raise DataError(f"dataset {name} split: images hold NaN or infinite values")
 
-    def check_trainable(self) -> None:
-        """What a (classification) training run needs: labels of >= 2 classes, >= 2 training examples, >= 1 for
-        validation (model selection) and for the test.
+    def check_trainable(self, labels: bool = True) -> None:
+        """What a training run needs: labels of >= 2 classes (``labels``: a classification run), >= 2 training
+        examples, >= 1 for validation (model selection) and for the test.
 
         Raises:
             ConfigError: naming the size setting (``dataset.val_size``, ...).
         """
-        if self.num_classes < 2:
+        if labels and self.num_classes < 2:
             raise ConfigError(
                 "dataset", f"{self.num_classes} class, no labels", "a classification run needs labelled images of >= 2 "
                 "classes (set the dataset's labels or attribute setting)",

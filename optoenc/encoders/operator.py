@@ -250,14 +250,25 @@ class SceneOperator:
         state = self._state()
         if self._cache.get("state") != state:
             with torch.no_grad():
-                op = self.tensor().detach().to(DENSE_DTYPE)
-            C, a, b, h, w = op.shape
-            flat = op.reshape(C, a * b, h * w)
-            matrix = flat.reshape(C * a * b, h * w) if self._scene_shape[0] == 1 else torch.block_diag(*flat)
-            if self.encoder.sensor.color == "bayer":  # the mosaic of the colour planes
-                matrix = mosaic_matrix((a, b), DENSE_DTYPE).to(matrix.device) @ matrix
+                matrix = self._as_matrix(self.tensor().detach().to(DENSE_DTYPE))
             self._cache = {"state": state, "dense": matrix}
         return self._cache["dense"]
+
+    def _as_matrix(self, op: torch.Tensor) -> torch.Tensor:
+        """The ``(C a b, S h w)`` matrix of a ``(C, a, b, h, w)`` operator tensor (its dtype, its graph)."""
+        C, a, b, h, w = op.shape
+        flat = op.reshape(C, a * b, h * w)
+        matrix = flat.reshape(C * a * b, h * w) if self._scene_shape[0] == 1 else torch.block_diag(*flat)
+        if self.encoder.sensor.color == "bayer":  # the mosaic of the colour planes
+            matrix = mosaic_matrix((a, b), op.dtype).to(matrix.device) @ matrix
+        return matrix
+
+    def matrix_in_graph(self, dtype: torch.dtype = DENSE_DTYPE) -> torch.Tensor:
+        """:meth:`dense` in ``dtype`` and differentiable with respect to the encoder's parameters (not cached
+        here; :meth:`tensor` is): for reconstruction inside a training graph (physics-informed decoders), so a
+        learned mask is trained through the solve."""
+        self._encoder("matrix_in_graph")
+        return self._as_matrix(self.tensor().to(dtype))
 
     @property
     def matrix(self) -> torch.Tensor:

@@ -20,8 +20,9 @@ def optoenc_register_encoders(registry):
 @hookimpl
 def optoenc_register_decoders(registry):
     from ..decoders import FCNN, Logistic
+    from ..decoders.image import Tikhonov, UNet, UnrolledADMM
 
-    for cls in (Logistic, FCNN):
+    for cls in (Logistic, FCNN, UNet, Tikhonov, UnrolledADMM):
         registry.add(cls)
 
 
@@ -41,4 +42,12 @@ def optoenc_register_datasets(registry):
     from ..datasets.mnist import MNIST
 
     for cls in (MNIST, ImageFolder, CIFAR10, CelebA):
+        registry.add(cls)
+
+
+@hookimpl
+def optoenc_register_tasks(registry):
+    from ..tasks import Classification, Reconstruction
+
+    for cls in (Classification, Reconstruction):
         registry.add(cls)

@@ -33,7 +33,7 @@ def optoenc_register_encoders(registry):
 
 @hookspec
 def optoenc_register_decoders(registry):
-    """Register `optoenc.Decoder` subclasses (digital classifiers on the embedding)."""
+    """Register `optoenc.Decoder` subclasses (digital decoders on the embedding: classifiers, reconstructions)."""
 
 
 @hookspec
@@ -44,6 +44,11 @@ def optoenc_register_augmentations(registry):
 @hookspec
 def optoenc_register_datasets(registry):
     """Register `optoenc.Dataset` subclasses (labelled images loaded into `optoenc.Splits`)."""
+
+
+@hookspec
+def optoenc_register_tasks(registry):
+    """Register `optoenc.tasks.Task` subclasses (what the decoder's output is trained for: target, loss, metrics)."""
 
 
 #: hook name -> registry kind, in registration order: one hook per kind of

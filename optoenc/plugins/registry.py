@@ -1,4 +1,4 @@
-"""`Registry`: one per plugin kind (encoders, decoders, augmentations, datasets).
+"""`Registry`: one per plugin kind (encoders, decoders, augmentations, datasets, tasks).
 
 A registry is the single source for CLI choices, listings, docs and test
 parametrisation. Plugins fill it through a registrar handed to their register
@@ -19,7 +19,7 @@ __all__ = ["Registry", "Registrar", "KINDS"]
 T = TypeVar("T")
 
 #: The plugin kinds, singular names, in listing order.
-KINDS = ("encoder", "decoder", "augmentation", "dataset")
+KINDS = ("encoder", "decoder", "augmentation", "dataset", "task")
 
 _NAME = re.compile(r"^[a-z][a-z0-9_]*$")
 

@@ -27,8 +27,10 @@ class EpochMetrics(L.Callback):
     or after the restart epoch are replaced, so none is lost or repeated.
     """
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, extra: tuple[str, ...] = ()):
         self.path = Path(path)
+        #: The task's further validation metrics (``val_psnr``, ...), columns before ``time_s``.
+        self.extra = tuple(extra)
         self._start = time.time()
 
     def on_train_epoch_start(self, trainer, pl_module) -> None:
@@ -46,11 +48,12 @@ class EpochMetrics(L.Callback):
             "val_loss": get("val_loss"),
             "val_acc": get("val_acc"),
             "test_acc": get("test_acc_epoch"),
+            **{k: get(k) for k in self.extra},
             "time_s": f"{time.time() - self._start:.2f}",
         }
         rows = [r for r in read_metrics(self.path) if int(r["epoch"]) < trainer.current_epoch] + [row]
         buf = io.StringIO()
-        w = csv.DictWriter(buf, fieldnames=METRIC_COLUMNS, lineterminator="\n")
+        w = csv.DictWriter(buf, fieldnames=(*METRIC_COLUMNS[:-1], *self.extra, METRIC_COLUMNS[-1]), lineterminator="\n")
         w.writeheader()
         w.writerows(rows)
         atomic_write_text(self.path, buf.getvalue())
@@ -223,8 +226,9 @@ class EpochLines(L.Callback):
     Printed by the first process only (a distributed run's metrics are reduced over its processes).
     """
 
-    def __init__(self, stream=None):
+    def __init__(self, stream=None, extra: tuple[str, ...] = ()):
         self.stream = stream
+        self.extra = tuple(extra)  # the task's further validation metrics
         self._start = time.time()
 
     def on_train_epoch_start(self, trainer, pl_module) -> None:
@@ -235,7 +239,8 @@ class EpochLines(L.Callback):
             return
         m = trainer.callback_metrics
         parts = [f"epoch {trainer.current_epoch + 1}/{trainer.max_epochs}"]
-        for k, name in (("train_loss_epoch", "train_loss"), ("train_acc", "train_acc"), ("val_loss", "val_loss"), ("val_acc", "val_acc")):
+        for k, name in (("train_loss_epoch", "train_loss"), ("train_acc", "train_acc"), ("val_loss", "val_loss"), ("val_acc", "val_acc"),
+                        *((k, k) for k in self.extra)):
             if k in m:
                 parts.append(f"{name} {float(m[k]):.4f}")
         parts.append(f"({time.time() - self._start:.1f} s)")

@@ -80,7 +80,8 @@ def batch_count(n: int, batch_size: int, limit: int | float = 1.0) -> int:
 
 
 def train_epoch(module, batch, batch_size: int, limit: int | float = 1.0) -> dict:
-    """Train ``module`` (an :class:`~optoenc.training.module.EncoderClassifier`) on one shuffled epoch.
+    """Train ``module`` (an :class:`~optoenc.training.module.EncoderClassifier` of the classification task) on one
+    shuffled epoch.
 
     ``batch`` is ``(embeddings, labels, ..., order)``: the split's tensors whole and the sampler's order
     (:class:`~optoenc.training.loaders.EpochOrder`); each mini-batch is gathered in turn. Logs
@@ -125,10 +126,10 @@ def train_epoch(module, batch, batch_size: int, limit: int | float = 1.0) -> dic
         (opt.step if b == nb - 1 else opt.optimizer.step)()  # the same update either way (plain precisions)
         module.encoder.constrain_()
     if predicted:
-        module.train_acc.update(torch.cat(predicted), torch.cat(labels))
+        module.task_metrics["train_"]["acc"].update(torch.cat(predicted), torch.cat(labels))
     mean = total / count if count else torch.tensor(float("nan"))
     module.log("train_loss_epoch", mean, on_step=False, on_epoch=True, prog_bar=True, batch_size=max(count, 1))
-    module.log("train_acc", module.train_acc.compute(), on_step=False, on_epoch=True, prog_bar=True)
+    module.log("train_acc", module.task_metrics["train_"]["acc"].compute(), on_step=False, on_epoch=True, prog_bar=True)
     return {"loss": mean}
 
 

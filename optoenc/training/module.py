@@ -1,4 +1,4 @@
-"""The LightningModule: augmentation -> optical encoder -> sensor noise -> decoder."""
+"""The LightningModule: augmentation -> optical encoder -> sensor noise -> decoder, trained for a task."""
 
 from __future__ import annotations
 
@@ -7,12 +7,11 @@ from typing import Sequence
 
 import lightning as L
 import torch
-import torch.nn.functional as F
 from torch import nn
-from torchmetrics.classification import MulticlassAccuracy
 
 from ..decoders import Decoder
 from ..encoders.base import OpticalEncoder
+from ..tasks import Classification, Task
 from .epoch_loop import train_epoch
 from .seeding import eval_batch_seed, reseed, train_batch_seed
 
@@ -23,11 +22,14 @@ LOOP_KEY = "optoenc_loop"
 
 
 class EncoderClassifier(L.LightningModule):
-    """Trains an optical encoder and a digital decoder together.
+    """Trains an optical encoder and a digital decoder together, for a task.
+
+    Batches are ``(inputs, targets[, extra])``; the task (:class:`optoenc.tasks.Task`) gives the loss of the
+    decoder's output against the targets and the metrics logged as ``<stage>_<name>``.
 
     Args:
         encoder: the optical encoder (its parameters are trained if it has any).
-        decoder: classifier on the embedding, emitting logits.
+        decoder: the decoder on the embedding (logits for classification, an image for reconstruction).
         augmentations: object-plane transforms applied to every training batch.
         canvas: canvas geometry for augmentations (from :mod:`optoenc.augment`);
             ``None`` when there are none.
@@ -46,6 +48,7 @@ class EncoderClassifier(L.LightningModule):
             epoch of precomputed embeddings, stepped through in mini-batches of ``batch_size``
             by :func:`optoenc.training.epoch_loop.train_epoch` (``trainer.loop = 'epoch'``);
             ``None``: Lightning's per-batch loop.
+        task: what the decoder's output is trained for (default: classification).
     """
 
     def __init__(
@@ -63,6 +66,7 @@ class EncoderClassifier(L.LightningModule):
         adversary: nn.Module | None = None,
         stored_canvases: bool = False,
         epoch_loop: tuple | None = None,
+        task: Task | None = None,
     ):
         super().__init__()
         self.encoder = encoder
@@ -76,10 +80,10 @@ class EncoderClassifier(L.LightningModule):
         self.stored_canvases = stored_canvases
         #: Privacy-aware training (:class:`optoenc.training.adversary.AdversaryObjective`), None: plain.
         self.adversary = adversary
-        n = decoder.num_classes
-        self.train_acc = MulticlassAccuracy(num_classes=n, average="micro")
-        self.val_acc = MulticlassAccuracy(num_classes=n, average="micro")
-        self.test_acc = MulticlassAccuracy(num_classes=n, average="micro")
+        self.task = task if task is not None else Classification()
+        #: ``"<stage>_"`` -> the task's metrics (``train_acc``, ``val_psnr``, ...), logged once an epoch.
+        self.task_metrics = nn.ModuleDict(
+            {f"{stage}_": nn.ModuleDict(self.task.make_metrics(stage, decoder)) for stage in ("train", "val", "test")})
         self._train_totals: tuple = (0.0, 0)  # this epoch's (sum of batch losses x batch sizes, examples)
         self.epoch_loop = epoch_loop
         self.automatic_optimization = epoch_loop is None  # the epoch loop steps the optimiser itself
@@ -108,7 +112,7 @@ class EncoderClassifier(L.LightningModule):
         return self.encoder.measure(x)
 
     def forward(self, x: torch.Tensor, augment: bool = False, draws: torch.Tensor | None = None) -> torch.Tensor:
-        """Logits for a batch of scenes (noise included)."""
+        """The decoder's output (logits, a reconstruction) for a batch of scenes (noise included)."""
         return self.decoder(self.embed(x, augment, draws))
 
     def embed(self, x: torch.Tensor, augment: bool = False, draws: torch.Tensor | None = None,
@@ -130,18 +134,20 @@ class EncoderClassifier(L.LightningModule):
         trainer = self._trainer
         return trainer is not None and trainer.world_size > 1
 
-    def _step(self, batch, metric, stage: str, augment: bool, batch_idx: int = 0) -> torch.Tensor:
+    def _step(self, batch, stage: str, augment: bool, batch_idx: int = 0) -> torch.Tensor:
         x, y = batch[0], batch[1]
         emb = self.embed(x, augment, batch[2] if len(batch) > 2 else None)
-        logits = self.decoder(emb)
-        loss = F.cross_entropy(logits, y)
-        metric.update(logits.detach(), y)
+        output = self.decoder(emb)
+        loss = self.task.loss(output, y)
+        metrics = self.task_metrics[f"{stage}_"]
+        self.task.update_metrics(metrics, output.detach(), y)
         if stage == "train":
             self._log_train(loss.detach(), len(y), batch_idx)
         else:
             self.log(f"{stage}_loss", loss, on_step=False, on_epoch=True, prog_bar=stage != "test", batch_size=len(y),
                      sync_dist=self._distributed)
-            self.log(f"{stage}_acc", metric, on_step=False, on_epoch=True, prog_bar=True, batch_size=len(y))
+            for name, metric in metrics.items():
+                self.log(f"{stage}_{name}", metric, on_step=False, on_epoch=True, prog_bar=True, batch_size=len(y))
         if self.adversary is not None and stage == "train":  # privacy-aware training: CE - lambda * adversary MSE
             loss, adv_mse = self.adversary.objective(loss, emb, x)
             self.log("train_adversary_mse", adv_mse, on_step=False, on_epoch=True, batch_size=len(y), sync_dist=self._distributed)
@@ -150,14 +156,16 @@ class EncoderClassifier(L.LightningModule):
     def training_step(self, batch, batch_idx):
         if self.epoch_loop is not None:
             return train_epoch(self, batch, *self.epoch_loop)
-        return self._step(batch, self.train_acc, "train", augment=True, batch_idx=batch_idx)
+        return self._step(batch, "train", augment=True, batch_idx=batch_idx)
 
     def on_train_epoch_start(self) -> None:
         self._train_totals = (0.0, 0)
-        self.train_acc.reset()
+        for metric in self.task_metrics["train_"].values():
+            metric.reset()
 
     def _log_train(self, loss: torch.Tensor, n: int, batch_idx: int) -> None:
-        """Log the training loss and accuracy: ``train_loss_step``, ``train_loss_epoch`` and ``train_acc``.
+        """Log the training loss and the task's training metrics: ``train_loss_step``, ``train_loss_epoch``,
+        ``train_acc`` (classification).
 
         One ``self.log`` costs ~0.6 ms on CPU (Lightning moves every logged result to the device each call):
         two a step were a sixth of a small decoder's step. So the epoch's loss (the batch-size-weighted
@@ -171,7 +179,8 @@ class EncoderClassifier(L.LightningModule):
             return
         if not math.isfinite(trainer.num_training_batches):  # an unsized loader: no last batch to wait for
             self.log("train_loss", loss, on_step=True, on_epoch=True, prog_bar=True, batch_size=n, sync_dist=self._distributed)
-            self.log("train_acc", self.train_acc, on_step=False, on_epoch=True, prog_bar=True, batch_size=n)
+            for name, metric in self.task_metrics["train_"].items():
+                self.log(f"train_{name}", metric, on_step=False, on_epoch=True, prog_bar=True, batch_size=n)
             return
         if (batch_idx + 1) % max(1, trainer.log_every_n_steps) == 0:
             self.log("train_loss_step", loss, on_step=True, on_epoch=False, prog_bar=True, batch_size=n,
@@ -180,13 +189,14 @@ class EncoderClassifier(L.LightningModule):
             total, count = self._train_totals
             self.log("train_loss_epoch", total / count, on_step=False, on_epoch=True, prog_bar=True, batch_size=count,
                      sync_dist=self._distributed)
-            self.log("train_acc", self.train_acc.compute(), on_step=False, on_epoch=True, prog_bar=True)
+            for name, metric in self.task_metrics["train_"].items():
+                self.log(f"train_{name}", metric.compute(), on_step=False, on_epoch=True, prog_bar=True)
 
     def validation_step(self, batch, batch_idx):
-        self._step(batch, self.val_acc, "val", augment=self.augment_eval)
+        self._step(batch, "val", augment=self.augment_eval)
 
     def test_step(self, batch, batch_idx):
-        self._step(batch, self.test_acc, "test", augment=self.augment_eval)
+        self._step(batch, "test", augment=self.augment_eval)
 
     # --------------------------------------------------------------- seeding
     # Each batch draws its noise and augmentations from a seed derived from

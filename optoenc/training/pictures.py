@@ -11,7 +11,7 @@ import torch
 
 from .rundir import atomic_write_bytes
 
-__all__ = ["spectral_psf", "psf_rgb", "save_psf", "save_mask", "mask_spacing", "save_measurements", "save_curves"]
+__all__ = ["spectral_psf", "psf_rgb", "save_psf", "save_mask", "mask_spacing", "save_measurements", "save_rows", "save_curves"]
 
 
 def _figure(figsize):
@@ -210,6 +210,26 @@ def save_measurements(
             ax2.set_ylabel(f"sensor embedding {a} x {b}{' [mm]' if e_sp else ' [px]'}", fontsize=8)
     fig.colorbar(_mappable(), cax=fig.add_subplot(grid[0, n]), label="intensity (0 to 1)")
     fig.colorbar(_mappable(), cax=fig.add_subplot(grid[1, n]), label="normalised to peak")
+    return _save(plt, fig, path)
+
+
+def save_rows(path: str | Path, rows: Sequence[tuple[str, torch.Tensor]], title: str = "") -> Path:
+    """A grid of images in [0, 1]: one row per ``(title, (N, C, h, w) images)``, one column per example (gray for
+    one channel, RGB for three; a task's pictures, e.g. scene / embedding / reconstruction)."""
+    n = max(len(t) for _, t in rows)
+    plt, fig = _figure((1.5 * max(n, 1) + 0.6, 1.6 * len(rows) + 0.4))
+    for r, (name, images) in enumerate(rows):
+        for i in range(len(images)):
+            ax = fig.add_subplot(len(rows), n, r * n + i + 1)
+            im = images[i].detach().cpu().float().clamp(0, 1)
+            ax.imshow(im[0].numpy() if im.shape[0] != 3 else im.permute(1, 2, 0).numpy(), cmap="gray", vmin=0, vmax=1,
+                      interpolation="nearest")
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if i == 0:
+                ax.set_ylabel(name, fontsize=7)
+    if title:
+        fig.suptitle(title, fontsize=9)
     return _save(plt, fig, path)
 
 

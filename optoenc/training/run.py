@@ -24,6 +24,7 @@ from ..errors import ConfigError, DataError, Interrupted, OptoencError
 from ..encoders.fidelity import FidelityConfig
 from ..plugins import get_registry
 from ..settings import to_dict
+from ..tasks import TASK_FEATURES
 from . import pictures
 from . import adversary, cache
 from .epoch_loop import resolve_loop
@@ -32,7 +33,7 @@ from .module import LOOP_KEY, EncoderClassifier
 from .resume import clear_interrupted, interrupted_note, mark_failed, raise_on_signals, read_checkpoint
 from .rundir import RUN_FILES, atomic_write_text, write_json
 
-__all__ = ["Parts", "build", "precomputes", "stores_transformed", "canvas_for", "fit", "evaluate", "checkpoint_path", "load_encoder",
+__all__ = ["Parts", "build", "task_of", "precomputes", "stores_transformed", "canvas_for", "fit", "evaluate", "checkpoint_path", "load_encoder",
            "checks_reference", "verify"]
 
 log = logging.getLogger(__name__)
@@ -87,12 +88,15 @@ def build(run: RunConfig, progress: bool = False, loop: str | None = None) -> Pa
 
         run.fidelity, run.fidelity_auto = resolve(run, root=run.trainer.cache_dir)
     torch.manual_seed(run.seed)
+    task = task_of(run)
+    _check_task(run, task)  # before the data is read
     splits = get_registry("dataset").get(run.names["dataset"])(run.dataset).load()
-    splits.check_trainable()  # val_size = 0 used to train with NaN validation and leave no best.ckpt
+    task.check(splits)  # val_size = 0 used to train with NaN validation and leave no best.ckpt
     encoder = encoder_from_run(run)
     augs = [get_registry("augmentation").get(a)(cfg) for a, cfg in run.augment.items()]
     decoder = get_registry("decoder").get(run.names["decoder"])(
-        run.decoder, in_shape=encoder.output_shape, num_classes=splits.num_classes, learnable_encoder=encoder.learnable
+        run.decoder, in_shape=encoder.output_shape, learnable_encoder=encoder.learnable,
+        **task.decoder_kwargs(splits, encoder),
     )
     once = bool(augs) and run.trainer.augment_draw == "once"
     precomputed = precomputes(run, encoder)
@@ -106,7 +110,12 @@ def build(run: RunConfig, progress: bool = False, loop: str | None = None) -> Pa
     either = resolve_loop("auto", **where) == "epoch"  # where the epoch loop applies, so does the batch loop
     loop = loop if either and loop in ("batch", "epoch") else resolve_loop(run.trainer.loop, **where)
     bs, ebs = run.trainer.batch_size, run.trainer.eval_batch_size
-    data = {"train": splits.train, "val": splits.val, "test": splits.test}
+    if "epoch_loop" not in task.features and loop == "epoch":
+        if run.trainer.loop == "epoch":
+            raise ConfigError("trainer.loop", "epoch", f"does not apply to the {task.name} task; use 'batch' or 'auto'")
+        loop = "batch"
+    data = {k: (split.images, task.target(split)) for k, split in
+            (("train", splits.train), ("val", splits.val), ("test", splits.test))}
     canvas = canvas_for(run, encoder, splits.train[0].shape[-2:]) if augs else None
     if once:
         from . import augment_once
@@ -155,6 +164,7 @@ def build(run: RunConfig, progress: bool = False, loop: str | None = None) -> Pa
         adversary=obj,
         stored_canvases=stored,
         epoch_loop=(bs, run.trainer.batch_limit("train")) if loop == "epoch" else None,
+        task=task,
     )
     if decoder.norm_kind == "standardize":
         sample = data["train"][0][:5000]
@@ -183,6 +193,29 @@ def build(run: RunConfig, progress: bool = False, loop: str | None = None) -> Pa
     return Parts(module, splits, loaders, precomputed, loop)
 
 
+def task_of(run: RunConfig):
+    """The run's task (``names["task"]``, default classification) built from its settings."""
+    return get_registry("task").get(run.names.get("task", "classification"))(run.task)
+
+
+def _check_task(run: RunConfig, task) -> None:
+    """The decoder must emit what the task trains; what the task cannot combine with, refused by name."""
+    cls = get_registry("decoder").get(run.names["decoder"])
+    output = getattr(cls, "output", "logits")
+    if output != task.decoder_output:
+        fits = [n for n in get_registry("decoder").names()
+                if getattr(get_registry("decoder").get(n), "output", "logits") == task.decoder_output]
+        raise ConfigError("decoder", run.names["decoder"], f"emits {output}, the {task.name} task needs {task.decoder_output}"
+                          f" (decoders: {', '.join(fits) or 'none'})")
+    asked = {"augment": ",".join(run.augment) if run.augment else None,
+             "adversary": run.privacy.adversary_weight or None,
+             "test_every_epoch": True if run.trainer.test_every_epoch else None}
+    for feature, value in asked.items():
+        if value is not None and feature not in task.features:
+            raise ConfigError(TASK_FEATURES[feature], value, f"does not apply to the {task.name} task (it works with: "
+                              f"{', '.join(task.features) or 'none of the optional features'})")
+
+
 def _encode(encoder, images, batch_size, progress, split):
     if not progress:
         return encode(encoder, images, batch_size)
@@ -200,12 +233,15 @@ def checkpoint_path(run_dir: Path, which: str = "last") -> Path:
 def _trainer(run: RunConfig, run_dir: Path, logger: bool = True, extra_callbacks=(), test_loader=None, loop: str = "batch"):
     from .callbacks import EpochLines, EpochMetrics, FiniteLoss, RunCheckpoint, WallClock
 
+    task = task_of(run)
+    metric, mode = task.monitor
+    extra = tuple(f"val_{m}" for m in task.summary_metrics if m not in ("loss", "acc"))
     callbacks = [
         RunCheckpoint(  # keeps its best score when the run directory is moved or copied
             dirpath=run_dir / RUN_FILES["checkpoints"],
             filename="best",
-            monitor="val_acc",
-            mode="max",
+            monitor=f"val_{metric}",
+            mode=mode,
             save_last=True,
             save_top_k=1,
             enable_version_counter=False,
@@ -218,13 +254,13 @@ def _trainer(run: RunConfig, run_dir: Path, logger: bool = True, extra_callbacks
             from .callbacks import EpochTest
 
             callbacks.append(EpochTest(test_loader))
-        callbacks.append(EpochMetrics(run_dir / RUN_FILES["metrics"]))
+        callbacks.append(EpochMetrics(run_dir / RUN_FILES["metrics"], extra=extra))
     callbacks.append(FiniteLoss(run))
     if not any(isinstance(c, WallClock) for c in callbacks):  # its state is in every checkpoint: restore it anywhere
         callbacks.append(WallClock())
     bar = run.trainer.progress and sys.stdout.isatty()
     if run.trainer.progress and not bar:  # a log file: one line per epoch, not a bar of carriage returns
-        callbacks.append(EpochLines())
+        callbacks.append(EpochLines(extra=extra))
     return _lightning_trainer(
         run,
         # The epoch loop applies the limit to its mini-batches; Lightning sees one batch an epoch.
@@ -266,6 +302,15 @@ def _pictures(parts: Parts, run: RunConfig, run_dir: Path, tag: str) -> None:
                 pic / "measurements.png", x, emb, y.tolist(), parts.splits.class_names,
                 scene_height=enc.scene_config.object_height, sensor_size=enc.sensor.size,
             )
+            task, decoder = parts.module.task, parts.module.decoder
+            training = decoder.training
+            decoder.eval()
+            try:
+                out = decoder(emb)
+            finally:
+                decoder.train(training)
+            for stem, rows in task.pictures(x, emb, out).items():  # the task's own pictures, if any
+                pictures.save_rows(pic / f"{stem}.png", rows, f"{task.name}: {enc.name} + {run.names['decoder']}")
 
 
 def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> dict[str, Any]:
@@ -320,12 +365,15 @@ def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> di
 def _finish(parts: Parts, run: RunConfig, run_dir: Path, trainer, clock, start: float) -> dict[str, Any]:
     """After training: the test of the selected epoch, the final pictures, the reference check; the summary."""
     best = checkpoint_path(run_dir, "best")
+    task = parts.module.task
+    metric, mode = task.monitor
     best_val = float(trainer.checkpoint_callback.best_model_score or float("nan"))
     if best_val != best_val:  # ddp_spawn: the callback's state stays in the workers; metrics.csv has it
         from .callbacks import read_metrics
 
-        vals = [float(r["val_acc"]) for r in read_metrics(run_dir / RUN_FILES["metrics"]) if r.get("val_acc")]
-        best_val = max(vals) if vals else float("nan")
+        col = f"val_{metric}"
+        vals = [float(r[col]) for r in read_metrics(run_dir / RUN_FILES["metrics"]) if r.get(col)]
+        best_val = (max if mode == "max" else min)(vals) if vals else float("nan")
     test = trainer.test(parts.module, parts.loaders["test"], ckpt_path=str(best) if best.exists() else None, verbose=False)
     _pictures(parts, run, run_dir, "final")
     pictures.save_curves(run_dir / RUN_FILES["pictures"] / "curves.png", run_dir / RUN_FILES["metrics"])
@@ -334,9 +382,9 @@ def _finish(parts: Parts, run: RunConfig, run_dir: Path, trainer, clock, start: 
         "seed": run.seed,
         "epochs": run.trainer.max_epochs,
         "best_epoch": _best_epoch(trainer),
-        "val_acc": best_val,
-        "test_acc": float(test[0]["test_acc"]) if test else float("nan"),
-        "best_test_acc": _best_test(run_dir),
+        f"val_{metric}": best_val,
+        **{f"test_{m}": float(test[0][f"test_{m}"]) if test else float("nan") for m in task.summary_metrics},
+        f"best_test_{metric}": _best_test(run_dir, metric, mode),
         "fidelity": parts.module.encoder.knobs.to_dict(),
         "precision": trainer.precision,  # Lightning's, resolved ('auto' -> bf16-mixed or 32-true)
         "d2": float(parts.module.encoder.d2),  # metres: the mask-to-sensor distance trained (learned with learn_d2)
@@ -428,12 +476,12 @@ def _lightning_trainer(run: RunConfig, **kwargs):
         raise ConfigError(f"trainer.{key}", getattr(run.trainer, key, kwargs.get(key)), msg) from None
 
 
-def _best_test(run_dir: Path) -> float | None:
+def _best_test(run_dir: Path, metric: str = "acc", mode: str = "max") -> float | None:
     """Best per-epoch test accuracy (``trainer.test_every_epoch``), else None: the paper's selection, for comparison only."""
     from .callbacks import read_metrics
 
-    vals = [float(r["test_acc"]) for r in read_metrics(run_dir / RUN_FILES["metrics"]) if r.get("test_acc")]
-    return max(vals) if vals else None
+    vals = [float(r[f"test_{metric}"]) for r in read_metrics(run_dir / RUN_FILES["metrics"]) if r.get(f"test_{metric}")]
+    return (max if mode == "max" else min)(vals) if vals else None
 
 
 def _best_epoch(trainer) -> int | None:
@@ -455,7 +503,8 @@ def checks_reference(run: RunConfig) -> bool:
 
 @torch.no_grad()
 def verify(parts: Parts, run: RunConfig, preset: str) -> dict[str, Any]:
-    """Test accuracy of the trained encoder and decoder re-simulated at ``preset`` fidelity.
+    """Test scores (the task's: accuracy for classification) of the trained encoder and decoder re-simulated at
+    ``preset`` fidelity.
 
     The encoder's learned parameters are copied into a fresh encoder built at
     that preset, so a reported number never rests only on an approximation.
@@ -465,14 +514,15 @@ def verify(parts: Parts, run: RunConfig, preset: str) -> dict[str, Any]:
     ref.load_state_dict(module.encoder.state_dict())
     ref.eval()
     module.eval()
-    x, y = parts.splits.test
+    x, y = parts.splits.test[0], module.task.target(parts.splits.test)
     torch.manual_seed(run.seed + 29)
-    correct = 0
+    outputs, targets = [], []
     for i in range(0, len(x), run.trainer.eval_batch_size):
         xb = x[i : i + run.trainer.eval_batch_size]
         emb = ref.add_sensor_noise(ref.measure(xb))
-        correct += int((module.decoder(emb).argmax(1) == y[i : i + len(xb)]).sum())
-    return {"preset": preset, "test_acc": correct / max(len(x), 1)}
+        outputs.append(module.decoder(emb))
+        targets.append(y[i : i + len(xb)])
+    return {"preset": preset, **module.task.reference_scores(outputs, targets)}
 
 
 def load_encoder(run: RunConfig, run_dir: Path, which: str = "best"):

@@ -1,4 +1,5 @@
-"""Digital decoders: classifiers on the sensor embedding, emitting logits, and the embedding's normalisations.
+"""Digital decoders: classifiers on the sensor embedding, emitting logits, the embedding's normalisations, and the
+base of the image decoders (reconstruction: :mod:`optoenc.decoders.image`).
 
 Both decoders follow REFERENCE §3 exactly; the loss (cross-entropy) is applied to the
 logits by the training module, never a softmax here.
@@ -12,9 +13,11 @@ from typing import Any, ClassVar
 import torch
 from torch import nn
 
-from .settings import Documented, Settings, coerce, setting
+from ..errors import ConfigError
+from ..settings import Documented, Settings, coerce, setting
 
-__all__ = ["DecoderConfig", "FCNNConfig", "Decoder", "Logistic", "FCNN", "EmbeddingBatchNorm", "EMBEDDING_NORMS"]
+__all__ = ["DecoderConfig", "FCNNConfig", "Decoder", "ImageDecoder", "Logistic", "FCNN", "EmbeddingBatchNorm",
+           "EMBEDDING_NORMS"]
 
 #: Pre-decoder normalisations of the embedding (a decoder plugin may add its own: :meth:`Decoder.normalisation`).
 EMBEDDING_NORMS = ("auto", "none", "standardize", "batchnorm_relu", "batchnorm")
@@ -90,6 +93,8 @@ class Decoder(Documented, nn.Module):
     Config: ClassVar[type] = DecoderConfig
     #: True: :meth:`build`'s module receives ``(B, C * a * b)``; False: ``(B, C, a, b)``.
     flatten: ClassVar[bool] = True
+    #: What it emits: ``"logits"`` (``(B, num_classes)``, classification) or ``"image"`` (:class:`ImageDecoder`).
+    output: ClassVar[str] = "logits"
 
     def __init__(self, config: Any = None, *, in_shape: tuple[int, ...], num_classes: int = 10, learnable_encoder: bool = False):
         super().__init__()
@@ -99,12 +104,17 @@ class Decoder(Documented, nn.Module):
         self.num_classes = int(num_classes)
         norm = self.config.embedding_norm
         if norm == "auto":
-            norm = "batchnorm_relu" if learnable_encoder else "standardize"
+            norm = self.auto_norm(learnable_encoder)
         self.norm_kind = norm
         self.norm = self.normalisation(norm)
         self.register_buffer("mean", torch.zeros(()))
         self.register_buffer("std", torch.ones(()))
         self.head = self.build()
+
+    @classmethod
+    def auto_norm(cls, learnable_encoder: bool) -> str:
+        """``embedding_norm = 'auto'`` resolved: ``batchnorm_relu`` for a learnable encoder, else ``standardize``."""
+        return "batchnorm_relu" if learnable_encoder else "standardize"
 
     def build(self) -> nn.Module:
         """The classifier: a module from the normalised embedding to ``(B, num_classes)`` logits.
@@ -139,6 +149,55 @@ class Decoder(Documented, nn.Module):
             x = (x - self.mean) / self.std
         x = self.norm(x)
         return self.head(x if self.flatten else x.view(-1, *self.in_shape))
+
+
+class ImageDecoder(Decoder):
+    """Base class: embedding ``(B, C, a, b)`` -> image ``(B, *out_shape)`` (e.g. the scene, for reconstruction).
+
+    The framework constructs it with keyword arguments it derives itself (from the task,
+    :meth:`optoenc.tasks.Task.decoder_kwargs`)::
+
+        MyImageDecoder(config, in_shape=encoder.output_shape, out_shape=(S, h, w), encoder=encoder,
+                       learnable_encoder=encoder.learnable)
+
+    ``out_shape`` is ``(S, h, w)`` of one output image (the scene's shape for reconstruction).
+    ``encoder`` is the run's optical encoder, held by reference, not as a submodule (the run's module owns and
+    trains it): a physics-informed decoder (``needs_encoder = True``) reads its differentiable operator at
+    forward time, ``self.encoder.operator((h, w), scene_channels=S).tensor()``, so a learned mask is trained
+    through the reconstruction too. ``embedding_norm = 'auto'`` resolves to ``batchnorm`` (per-pixel, no
+    ReLU: it would zero every below-average reading) for a learnable encoder and ``standardize`` otherwise;
+    a physics-informed decoder reads the raw measurement (``none``).
+    """
+
+    output = "image"
+    flatten = False
+    #: Whether :meth:`build` and ``forward`` read ``self.encoder`` (its operator).
+    needs_encoder: ClassVar[bool] = False
+
+    def __init__(self, config: Any = None, *, in_shape: tuple[int, ...], out_shape: tuple[int, ...], encoder=None,
+                 learnable_encoder: bool = False, num_classes: int = 1):
+        self.out_shape = tuple(int(s) for s in out_shape)
+        if len(self.out_shape) != 3 or min(self.out_shape) < 1:
+            raise ConfigError("decoder out_shape", self.out_shape, "must be (channels, height, width), each >= 1")
+        if self.needs_encoder and encoder is None:
+            raise ConfigError("decoder", self.name, "is physics-informed: it needs the run's encoder (encoder=...)")
+        self._encoder_ref = (encoder,)  # a tuple: not registered as a submodule (no second copy of its parameters)
+        super().__init__(config, in_shape=in_shape, num_classes=num_classes, learnable_encoder=learnable_encoder)
+
+    @property
+    def encoder(self):
+        """The run's encoder (None where none was given)."""
+        return self._encoder_ref[0]
+
+    @classmethod
+    def auto_norm(cls, learnable_encoder: bool) -> str:
+        if cls.needs_encoder:
+            return "none"
+        return "batchnorm" if learnable_encoder else "standardize"
+
+    def build(self) -> nn.Module:
+        """The module from the normalised embedding ``(B, C, a, b)`` to ``(B, *out_shape)``."""
+        raise NotImplementedError
 
 
 class Logistic(Decoder):
