@@ -13,6 +13,7 @@ import pytest
 from optoenc import plugins
 from optoenc.cli import catalogue as listing
 from optoenc.plugins import host
+from optoenc.plugins.registry import KINDS
 from optoenc.errors import PluginError
 from optoenc.plugins.hookspecs import hookimpl
 from optoenc.plugins import STRICT_ENV, PluginHost, get_host, get_registry, register_plugin
@@ -139,10 +140,11 @@ def test_builtins_are_registered_through_the_hooks():
     host = get_host()
     builtins = host.plugins[0]
     assert builtins.name == "builtins" and builtins.ok and builtins.module == "optoenc.plugins.builtins"
-    assert set(builtins.registered) == {"encoder", "decoder", "augmentation", "dataset"}
+    assert set(builtins.registered) == set(KINDS) == {"encoder", "decoder", "augmentation", "dataset", "task"}
     assert "diffuser" in builtins.registered["encoder"]
     assert {"logistic", "fcnn"} <= set(builtins.registered["decoder"])
     assert builtins.registered["dataset"] == ["celeba", "cifar10", "image_folder", "mnist"]
+    assert builtins.registered["task"] == ["classification", "reconstruction"]
     assert get_registry("encoder").source("diffuser") == "builtins"
     assert host.pm.has_plugin("builtins")
     # the hook implementations come from optoenc.plugins.builtins, like any third-party plugin's
