@@ -55,19 +55,33 @@ def test_export_refuses_an_encoder_without_a_panel(tmp_path, quick_args, capsys)
 
 
 def _pairs():
+    """(encoder, decoder, task) for every registered encoder and decoder, each decoder with the first task that
+    takes what it emits. Image decoders with every encoder but the lens are slow (tests/test_tasks.py covers them)."""
     from optoenc.plugins import get_registry
 
-    return [(e, d) for e in get_registry("encoder").names() for d in get_registry("decoder").names()]
+    tasks = get_registry("task")
+    out = []
+    for d in get_registry("decoder").names():
+        emits = get_registry("decoder").get(d).output
+        task = next(t for t in tasks.names() if tasks.get(t).decoder_output == emits)
+        for e in get_registry("encoder").names():
+            marks = [pytest.mark.slow] if task != "classification" and e != "lens" else []
+            out.append(pytest.param(e, d, task, marks=marks, id=f"{e}-{d}"))
+    return out
 
 
-@pytest.mark.parametrize("encoder,decoder", _pairs())
-def test_every_encoder_decoder_pair_trains_through_the_cli(tmp_path, quick_args, encoder, decoder):
-    """Smoke run: one epoch on a few hundred digits, fast preset, for every registered pair."""
-    args = ["fit", "--encoder", encoder, "--decoder", decoder, "--trainer.max_epochs=1", "--fidelity.preset=fast", *quick_args]
+@pytest.mark.parametrize("encoder,decoder,task", _pairs())
+def test_every_encoder_decoder_pair_trains_through_the_cli(tmp_path, quick_args, encoder, decoder, task):
+    """Smoke run: one epoch on a few hundred digits, fast preset, for every registered pair and its task."""
+    args = ["fit", "--encoder", encoder, "--decoder", decoder, "--task", task, "--trainer.max_epochs=1",
+            "--fidelity.preset=fast", *quick_args]
     assert main(args) == 0
     summary = json.loads(next(tmp_path.iterdir()).joinpath("summary.json").read_text())
-    assert summary["names"] == {"encoder": encoder, "decoder": decoder, "dataset": "mnist"}
-    assert 0.0 <= summary["test_acc"] <= 1.0
+    assert summary["names"] == {"encoder": encoder, "decoder": decoder, "dataset": "mnist", "task": task}
+    if task == "classification":
+        assert 0.0 <= summary["test_acc"] <= 1.0
+    else:
+        assert summary["test_psnr"] > 0 and -1.0 <= summary["test_ssim"] <= 1.0
 
 
 def test_corrupt_mnist_through_the_cli_names_the_file_and_both_hashes(tmp_path, monkeypatch, capsys):
