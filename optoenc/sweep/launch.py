@@ -65,8 +65,8 @@ def resolve_start(start: str, run=None) -> str:
 
 
 def _forked_cell(path: str, threads: int, env: dict, cwd: str) -> None:
-    """The forked cell's body: its own session, the sweep's environment and folder, output to its log."""
-    os.setsid()  # as subprocess's start_new_session: a terminal's Ctrl-C reaches the sweep, which passes it on
+    """The forked cell's body: its own process group, the sweep's environment and folder, output to its log."""
+    os.setpgid(0, 0)  # as Popen's process_group=0: a terminal's Ctrl-C reaches the sweep, which passes it on
     os.environ.clear()
     os.environ.update(env)
     os.chdir(cwd)
@@ -133,5 +133,5 @@ def launch(path: Path, threads: int, start: str):
         return subprocess.Popen(
             [sys.executable, "-m", "optoenc.sweep.cell", str(path), str(threads)],
             stdout=log, stderr=subprocess.STDOUT, env=env, stdin=subprocess.DEVNULL,
-            start_new_session=True,  # a terminal's Ctrl-C reaches the sweep only, which passes it on once
+            process_group=0,  # a group of its own: a terminal's Ctrl-C reaches the sweep only, which passes it on once
         )
