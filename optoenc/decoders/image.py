@@ -99,15 +99,32 @@ class UNet(ImageDecoder):
         return _Upsampled(UNetBody(self.in_shape[0], S, self.config.width, self.config.levels), (h, w))
 
 
-def regularised_solve(M: torch.Tensor, rhs: torch.Tensor, lam: torch.Tensor) -> torch.Tensor:
+def regularised_solve(M: torch.Tensor, rhs: torch.Tensor, lam: torch.Tensor, spectrum=None) -> torch.Tensor:
     """``(M^T M + lam I)^{-1} rhs`` for ``rhs`` ``(B, n)`` and ``M`` ``(m, n)``, differentiable; through the
-    ``m x m`` system where ``m < n`` (Woodbury: ``(rhs - M^T (M M^T + lam I)^{-1} M rhs) / lam``)."""
+    ``m x m`` system where ``m < n`` (Woodbury: ``(rhs - M^T (M M^T + lam I)^{-1} M rhs) / lam``).
+
+    ``spectrum``: :func:`gram_spectrum` of ``M``, for a fixed ``M``: the solve is then two products with its
+    eigenvectors for any ``lam`` (no factorisation; no gradient with respect to ``M``)."""
     m, n = M.shape
+    if spectrum is not None:
+        ev, V = spectrum
+        if n <= m:
+            return ((rhs @ V) / (ev + lam)) @ V.T
+        return (rhs - (((rhs @ M.T) @ V) / (ev + lam)) @ V.T @ M) / lam
     if n <= m:
         K = M.T @ M + lam * torch.eye(n, dtype=M.dtype, device=M.device)
         return torch.linalg.solve(K, rhs.T).T
     K = M @ M.T + lam * torch.eye(m, dtype=M.dtype, device=M.device)
     return (rhs - torch.linalg.solve(K, (rhs @ M.T).T).T @ M) / lam
+
+
+def gram_spectrum(M: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Eigenvalues and eigenvectors of the smaller Gram matrix of ``M`` (``M^T M`` where ``n <= m``, else
+    ``M M^T``), detached: what :func:`regularised_solve` needs to solve for any ``lam`` without a factorisation."""
+    M = M.detach()
+    m, n = M.shape
+    ev, V = torch.linalg.eigh(M.T @ M if n <= m else M @ M.T)
+    return ev.clamp_min(0), V  # a Gram matrix is positive semi-definite: rounding's negative eigenvalues are 0
 
 
 @dataclass
@@ -141,6 +158,18 @@ class _Physics(ImageDecoder):
         S, h, w = self.out_shape
         return self.encoder.operator((h, w), scene_channels=S).matrix_in_graph(torch.float64)
 
+    def spectrum(self, M: torch.Tensor):
+        """:func:`gram_spectrum` of ``M`` where the encoder is fixed (its operator cannot change while it trains,
+        so one eigendecomposition serves every step: a solve is then products only), kept while ``M`` holds the
+        same values; None for a learnable encoder (its solves stay factorisations in the mask's graph)."""
+        if getattr(self.encoder, "learnable", True):
+            return None
+        cached = getattr(self, "_spectrum", None)
+        if cached is None or cached[0].shape != M.shape or cached[0].device != M.device or not torch.equal(cached[0], M):
+            cached = (M.detach().clone(), gram_spectrum(M))
+            self._spectrum = cached  # a plain attribute: not in the state dict, rebuilt after loading
+        return cached[1]
+
     def solve(self, y: torch.Tensor, M: torch.Tensor) -> torch.Tensor:
         """``(B, m)`` float64 measurements -> ``(B, n)`` scenes."""
         raise NotImplementedError
@@ -171,8 +200,12 @@ class Tikhonov(_Physics):
     def solve(self, y: torch.Tensor, M: torch.Tensor) -> torch.Tensor:
         m, n = M.shape
         lam = self.log_lambda.to(M.dtype).exp() * (M * M).sum() / n
+        spectrum = self.spectrum(M)
         if n <= m:
-            return regularised_solve(M, y @ M, lam)
+            return regularised_solve(M, y @ M, lam, spectrum)
+        if spectrum is not None:
+            ev, V = spectrum
+            return ((y @ V) / (ev + lam)) @ V.T @ M
         K = M @ M.T + lam * torch.eye(m, dtype=M.dtype, device=M.device)
         return torch.linalg.solve(K, y.T).T @ M  # M^T (M M^T + lam I)^{-1} y: the same x, the smaller system
 
@@ -213,9 +246,10 @@ class UnrolledADMM(_Physics):
         z = torch.zeros_like(aty)
         u = torch.zeros_like(aty)
         shape = (-1, *self.out_shape)
+        spectrum = self.spectrum(M)
         for k in range(self.config.iterations):
             rho = self.log_rho[k].to(M.dtype).exp() * s
-            x = regularised_solve(M, aty + rho * (z - u), rho)
+            x = regularised_solve(M, aty + rho * (z - u), rho, spectrum)
             v = x + u
             v = v - self.tau[k].to(M.dtype) * _tv_gradient(v.view(shape)).flatten(1)
             z = F.relu(v)

@@ -71,17 +71,20 @@ def training_step(run, scene_shape, scenes: torch.Tensor | None = None):
     from ..plugins import get_registry
     from ..training.augment_once import draws, store_transformed
     from ..training.module import EncoderClassifier
-    from ..training.run import canvas_for, precomputes, stores_transformed
+    from ..training.run import canvas_for, precomputes, stores_transformed, task_of
 
     enc = encoder_from_run(run)
+    task = task_of(run)
+    image = task.decoder_output == "image"  # the decoder outputs the scene, the target is the scene itself
+    out = {"out_shape": tuple(scene_shape), "encoder": enc} if image else {"num_classes": 10}
     dec = get_registry("decoder").get(run.names["decoder"])(
-        run.decoder, in_shape=enc.output_shape, num_classes=10, learnable_encoder=enc.learnable)
+        run.decoder, in_shape=enc.output_shape, learnable_encoder=enc.learnable, **out)
     augs = [get_registry("augmentation").get(a)(cfg) for a, cfg in run.augment.items()]
     canvas = canvas_for(run, enc, scene_shape[-2:]) if augs else None
     pre = precomputes(run, enc)
     stored = stores_transformed(run, enc)
     module = EncoderClassifier(enc, dec, [] if pre else augs, canvas=canvas, lr=run.trainer.lr, precomputed=pre,
-                               stored_canvases=stored)
+                               stored_canvases=stored, task=task)
     opt = module.configure_optimizers()
     bs = run.trainer.batch_size
     if pre:
@@ -89,7 +92,7 @@ def training_step(run, scene_shape, scenes: torch.Tensor | None = None):
     else:
         x = torch.rand(bs, *scene_shape) if scenes is None else scenes.to(torch.float32).repeat(
             (-(-bs // len(scenes)),) + (1,) * (scenes.dim() - 1))[:bs]
-    y = torch.randint(0, 10, (len(x),))
+    y = torch.rand(len(x), *scene_shape) if image else torch.randint(0, 10, (len(x),))
     extra, store_s = None, 0.0
     if stored:  # the one-off transform of the dataset, then steps on its stored windows
         t0 = time.perf_counter()
@@ -101,7 +104,7 @@ def training_step(run, scene_shape, scenes: torch.Tensor | None = None):
     def step() -> None:
         opt.zero_grad()
         with torch.autocast("cpu", dtype=torch.bfloat16, enabled=mixed):
-            loss = torch.nn.functional.cross_entropy(module(x, augment=True, draws=extra), y)
+            loss = task.loss(module(x, augment=True, draws=extra), y)
         loss.backward()
         opt.step()
 
