@@ -1,7 +1,9 @@
 """Collecting a sweep: one row per cell, seeds aggregated, CSV + markdown + plots.
 
 All accuracies in the sweep's tables are in percent (the paper's unit);
-``summary.json`` of each run keeps fractions.
+``summary.json`` of each run keeps fractions. A reconstruction sweep's tables carry
+``test_psnr`` (dB) and ``test_ssim`` with their standard deviations over seeds, a sweep under
+``sensor.exposure=fixed`` the encoders' ``throughput``; columns no cell fills are left out.
 """
 
 from __future__ import annotations
@@ -25,13 +27,18 @@ __all__ = ["cell_rows", "aggregate", "write_tables", "CELL_COLUMNS", "SUMMARY_CO
 CELL_COLUMNS = (
     "cell", "state", "encoder", "embedding", "decoder", "transform", "augment_mode", "precision", "variant", "seed",
     "epochs",
-    "best_epoch", "val_acc", "test_acc", "best_test_acc", "reference_test_acc", "paper_acc", "wall_time_s",
-    "epoch_time_s", "clock_s", "error",
+    "best_epoch", "val_acc", "test_acc", "best_test_acc", "reference_test_acc", "paper_acc", "test_psnr", "test_ssim",
+    "throughput", "wall_time_s", "epoch_time_s", "clock_s", "error",
 )
 SUMMARY_COLUMNS = (
     "encoder", "embedding", "decoder", "transform", "augment_mode", "precision", "variant", "seeds", "test_acc", "test_acc_std",
-    "best_test_acc", "reference_test_acc", "paper_acc", "diff_vs_paper", "wall_time_s",
+    "best_test_acc", "reference_test_acc", "paper_acc", "diff_vs_paper", "test_psnr", "test_psnr_std", "test_ssim",
+    "test_ssim_std", "throughput", "throughput_std", "wall_time_s",
 )
+#: Columns shown only where some row fills them (a classification sweep has no PSNR; throughput: exposure=fixed).
+OPTIONAL_COLUMNS = ("val_acc", "test_acc", "test_acc_std", "best_test_acc", "reference_test_acc", "paper_acc",
+                    "diff_vs_paper", "test_psnr", "test_psnr_std", "test_ssim", "test_ssim_std", "throughput",
+                    "throughput_std")
 
 
 def _pct(x: Any) -> float | None:
@@ -99,6 +106,9 @@ def cell_rows(spec: SweepSpec, planned: list[PlannedCell]) -> list[dict[str, Any
             "best_test_acc": _pct(summary.get("best_test_acc")),
             "reference_test_acc": _pct((summary.get("verify") or {}).get("test_acc")),
             "paper_acc": spec.paper_figure(p.cell),
+            "test_psnr": _round(summary.get("test_psnr"), 2),
+            "test_ssim": _round(summary.get("test_ssim"), 4),
+            "throughput": _round(summary.get("throughput"), 4) if run.sensor.exposure == "fixed" else None,
             "wall_time_s": summary.get("wall_time_s"),
             "epoch_time_s": round(sum(times) / len(times), 2) if times else None,
             "clock_s": clock["seconds"] if clock else None,
@@ -107,12 +117,16 @@ def cell_rows(spec: SweepSpec, planned: list[PlannedCell]) -> list[dict[str, Any
     return rows
 
 
-def _mean_std(vals: list[float]) -> tuple[float | None, float | None]:
+def _round(x: Any, digits: int) -> float | None:
+    return None if x is None or (isinstance(x, float) and math.isnan(x)) else round(float(x), digits)
+
+
+def _mean_std(vals: list[float], digits: int = 2) -> tuple[float | None, float | None]:
     if not vals:
         return None, None
     m = sum(vals) / len(vals)
     sd = math.sqrt(sum((v - m) ** 2 for v in vals) / (len(vals) - 1)) if len(vals) > 1 else None
-    return round(m, 2), (round(sd, 2) if sd is not None else None)
+    return round(m, digits), (round(sd, digits) if sd is not None else None)
 
 
 def aggregate(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -128,6 +142,9 @@ def aggregate(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         best, _ = _mean_std([r["best_test_acc"] for r in rs if r["best_test_acc"] is not None])
         ref, _ = _mean_std([r["reference_test_acc"] for r in rs if r["reference_test_acc"] is not None])
         paper = rs[0]["paper_acc"]
+        extra = {}
+        for name, digits in (("test_psnr", 2), ("test_ssim", 4), ("throughput", 4)):
+            extra[name], extra[f"{name}_std"] = _mean_std([r[name] for r in rs if r.get(name) is not None], digits)
         out.append({
             **dict(zip(keys, key)),
             "seeds": len(rs),
@@ -137,6 +154,7 @@ def aggregate(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
             "reference_test_acc": ref,
             "paper_acc": paper,
             "diff_vs_paper": round(test - paper, 2) if test is not None and paper is not None else None,
+            **extra,
             "wall_time_s": round(sum(r["wall_time_s"] or 0 for r in rs), 1),
         })
     return out
@@ -152,10 +170,21 @@ def _csv(rows: list[dict[str, Any]], columns: tuple[str, ...]) -> str:
 
 
 def _markdown(rows: list[dict[str, Any]], columns: tuple[str, ...]) -> str:
-    cell = lambda v: "" if v is None else (f"{v:.2f}" if isinstance(v, float) else str(v))  # noqa: E731
+    def cell(v: Any, column: str) -> str:
+        if v is None:
+            return ""
+        if isinstance(v, float):  # SSIM and throughput are fractions: three decimals; the rest two
+            return f"{v:.3f}" if column.startswith(("test_ssim", "throughput")) else f"{v:.2f}"
+        return str(v)
+
     lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
-    lines += ["| " + " | ".join(cell(r.get(k)) for k in columns) + " |" for r in rows]
+    lines += ["| " + " | ".join(cell(r.get(k), k) for k in columns) + " |" for r in rows]
     return "\n".join(lines) + "\n"
+
+
+def filled(rows: list[dict[str, Any]], columns: tuple[str, ...]) -> tuple[str, ...]:
+    """``columns`` less the :data:`OPTIONAL_COLUMNS` that no row fills."""
+    return tuple(c for c in columns if c not in OPTIONAL_COLUMNS or any(r.get(c) is not None for r in rows))
 
 
 def write_tables(spec: SweepSpec, planned: list[PlannedCell], sweep_dir: str | Path) -> dict[str, Path]:
@@ -163,14 +192,18 @@ def write_tables(spec: SweepSpec, planned: list[PlannedCell], sweep_dir: str | P
     sweep_dir = Path(sweep_dir)
     rows = cell_rows(spec, planned)
     agg = aggregate(rows)
+    columns = filled(agg, SUMMARY_COLUMNS) if agg else SUMMARY_COLUMNS
     out = {
-        "cells": atomic_write_text(sweep_dir / "cells.csv", _csv(rows, CELL_COLUMNS)),
-        "summary": atomic_write_text(sweep_dir / "summary.csv", _csv(agg, SUMMARY_COLUMNS)),
+        "cells": atomic_write_text(sweep_dir / "cells.csv", _csv(rows, filled(rows, CELL_COLUMNS) if agg else CELL_COLUMNS)),
+        "summary": atomic_write_text(sweep_dir / "summary.csv", _csv(agg, columns)),
     }
     done = sum(r["state"] == "finished" for r in rows)
-    md = [f"# Sweep {spec.name}\n", f"{done} of {len(rows)} cells finished. Accuracies in percent; "
-          "test_acc is selected on validation, best_test_acc is the best test accuracy over epochs "
-          "(the paper's selection, shown for comparison only).\n", _markdown(agg, SUMMARY_COLUMNS)]
+    units = ("Accuracies in percent; test_acc is selected on validation, best_test_acc is the best test accuracy "
+             "over epochs (the paper's selection, shown for comparison only)." if "test_acc" in columns else
+             "test_psnr in dB and test_ssim (Wang et al. 2004) of the epoch with the lowest validation loss.")
+    if "throughput" in columns:
+        units += " throughput: the light collected relative to a fully open aperture of the same size."
+    md = [f"# Sweep {spec.name}\n", f"{done} of {len(rows)} cells finished. {units}\n", _markdown(agg, columns)]
     failed = [r for r in rows if r["state"] == "failed"]
     if failed:
         md += ["\n## Failed cells\n", _markdown(failed, ("cell", "error"))]
