@@ -230,7 +230,21 @@ def checkpoint_path(run_dir: Path, which: str = "last") -> Path:
     return Path(run_dir) / RUN_FILES["checkpoints"] / f"{which}.ckpt"
 
 
-def _trainer(run: RunConfig, run_dir: Path, logger: bool = True, extra_callbacks=(), test_loader=None, loop: str = "batch"):
+def _log_interval(run: RunConfig, train_batches: int | None) -> int:
+    """Lightning's ``log_every_n_steps``: its default 50, or the epoch's batch count where that is smaller (a small
+    dataset: Lightning would warn that it never logs within an epoch)."""
+    if train_batches is None:
+        return 50
+    limit = run.trainer.batch_limit("train")
+    if isinstance(limit, float) and limit < 1:
+        train_batches = int(train_batches * limit)
+    elif not isinstance(limit, float):
+        train_batches = min(train_batches, int(limit))
+    return max(1, min(50, train_batches))
+
+
+def _trainer(run: RunConfig, run_dir: Path, logger: bool = True, extra_callbacks=(), test_loader=None, loop: str = "batch",
+             train_batches: int | None = None):
     from .callbacks import EpochLines, EpochMetrics, FiniteLoss, RunCheckpoint, WallClock
 
     task = task_of(run)
@@ -279,7 +293,7 @@ def _trainer(run: RunConfig, run_dir: Path, logger: bool = True, extra_callbacks
         enable_model_summary=False,
         num_sanity_val_steps=0,
         # The epoch loop logs once an epoch, one Lightning step: every step is a logging step.
-        **({"log_every_n_steps": 1} if loop == "epoch" else {}),
+        log_every_n_steps=1 if loop == "epoch" else _log_interval(run, train_batches),
         default_root_dir=run_dir,
     )
 
@@ -335,7 +349,8 @@ def fit(run: RunConfig, run_dir: Path, resume: bool = False, callbacks=()) -> di
     from .callbacks import WallClock
 
     clock = WallClock(start)
-    trainer = _trainer(run, run_dir, extra_callbacks=(*callbacks, clock), test_loader=parts.loaders["test"], loop=parts.loop)
+    trainer = _trainer(run, run_dir, extra_callbacks=(*callbacks, clock), test_loader=parts.loaders["test"], loop=parts.loop,
+                       train_batches=len(parts.loaders["train"]))
     run_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_text(run_dir / RUN_FILES["config"], run.to_yaml())
     if not resume and parts.module.encoder.learnable:  # a fixed encoder's initial PSF is its final one
