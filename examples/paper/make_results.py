@@ -234,7 +234,7 @@ def _copy_cells(planned, out: Path) -> None:
 
 
 def _learned_psfs(planned, out: Path) -> Path | None:
-    from optoenc.training.pictures import _figure, _save
+    from optoenc.training.pictures import new_figure, save_figure
 
     pics = [(p.cell.name, p.path / "pictures" / "psf_final.png") for p in planned
             if p.run.names["encoder"].startswith("learned") and (p.path / "pictures" / "psf_final.png").is_file()]
@@ -244,20 +244,20 @@ def _learned_psfs(planned, out: Path) -> Path | None:
 
     cols = min(4, len(pics))
     rows = (len(pics) + cols - 1) // cols
-    plt, fig = _figure((4.2 * cols, 3.4 * rows))
+    plt, fig = new_figure((4.2 * cols, 3.4 * rows))
     for i, (name, path) in enumerate(pics):
         ax = fig.add_subplot(rows, cols, i + 1)
         ax.imshow(mpimg.imread(path))
         ax.set_title(name.replace("encoder=", "").replace(",", " ")[:48], fontsize=7)
         ax.axis("off")
     fig.tight_layout()
-    return _save(plt, fig, out)
+    return save_figure(plt, fig, out)
 
 
 def _embeddings(planned, out: Path, n: int = 4) -> Path | None:
     """The same test digits through every encoder at every size (learned ones: their trained checkpoint)."""
     from optoenc.config import encoder_from_run, compose
-    from optoenc.training.pictures import _figure, _save
+    from optoenc.training.pictures import new_figure, save_figure
     from optoenc.plugins import get_registry
     from optoenc.training import checkpoint_path, load_encoder
 
@@ -280,7 +280,7 @@ def _embeddings(planned, out: Path, n: int = 4) -> Path | None:
                 rows.append((f"{enc}\n{emb}", encoder.eval().measure(digits)))
     if not rows:
         return None
-    plt, fig = _figure((1.6 * (n + 1), 1.25 * len(rows)))
+    plt, fig = new_figure((1.6 * (n + 1), 1.25 * len(rows)))
     for i in range(n):
         ax = fig.add_subplot(len(rows) + 1, n + 1, i + 2)
         ax.imshow(digits[i, 0], cmap="gray")
@@ -296,7 +296,7 @@ def _embeddings(planned, out: Path, n: int = 4) -> Path | None:
             ax.axis("off")
     fig.suptitle("sensor embeddings of the same test digits (noise-free, each image scaled to its own range)",
                  fontsize=8)
-    return _save(plt, fig, out)
+    return save_figure(plt, fig, out)
 
 
 def main() -> None:

@@ -17,7 +17,7 @@ from faultkit import TINY, run
 def figures(monkeypatch):
     """Capture each figure the picture helpers save (instead of reading PNG pixels)."""
     saved = []
-    orig = pictures._save
+    orig = pictures.save_figure
 
     def keep(plt, fig, path):
         saved.append(fig)
@@ -27,7 +27,7 @@ def figures(monkeypatch):
         fig._snapshot = snapshot
         return orig(plt, fig, path)
 
-    monkeypatch.setattr(pictures, "_save", keep)
+    monkeypatch.setattr(pictures, "save_figure", keep)
     return saved
 
 
