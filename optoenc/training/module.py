@@ -15,13 +15,13 @@ from ..tasks import Classification, Task
 from .epoch_loop import train_epoch
 from .seeding import eval_batch_seed, reseed, train_batch_seed
 
-__all__ = ["EncoderClassifier", "LOOP_KEY"]
+__all__ = ["EncoderDecoderModule", "LOOP_KEY"]
 
 #: Checkpoint entry naming the training loop that wrote it (``'batch'`` or ``'epoch'``).
 LOOP_KEY = "optoenc_loop"
 
 
-class EncoderClassifier(L.LightningModule):
+class EncoderDecoderModule(L.LightningModule):
     """Trains an optical encoder and a digital decoder together, for a task.
 
     Batches are ``(inputs, targets[, extra])``; the task (:class:`optoenc.tasks.Task`) gives the loss of the

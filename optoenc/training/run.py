@@ -29,7 +29,7 @@ from . import pictures
 from . import adversary, cache
 from .epoch_loop import resolve_loop
 from .loaders import encode, make_loader
-from .module import LOOP_KEY, EncoderClassifier
+from .module import LOOP_KEY, EncoderDecoderModule
 from .resume import clear_interrupted, interrupted_note, mark_failed, raise_on_signals, read_checkpoint
 from .rundir import RUN_FILES, atomic_write_text, write_json
 
@@ -43,7 +43,7 @@ log = logging.getLogger(__name__)
 class Parts:
     """Everything a run trains and evaluates."""
 
-    module: EncoderClassifier
+    module: EncoderDecoderModule
     splits: Any
     loaders: dict[str, Any]
     precomputed: bool
@@ -151,7 +151,7 @@ def build(run: RunConfig, progress: bool = False, loop: str | None = None) -> Pa
             expect={k: len(v[1]) for k, v in data.items()},
         )
         data = {k: (emb[k], y) for k, (_x, y) in data.items()}
-    module = EncoderClassifier(
+    module = EncoderDecoderModule(
         encoder,
         decoder,
         augs,
