@@ -165,10 +165,32 @@ def save_mask(
             im = ax.imshow(m.squeeze().numpy(), cmap="gray", vmin=0, vmax=1, interpolation="nearest", extent=ext)
             fig.colorbar(im, ax=ax, label="amplitude transmittance (0 opaque, 1 clear)", fraction=0.046, pad=0.04)
     _axes_labels(ax, "on mask", spacing is not None)
+    _zoom_to_light(ax, m, ext)
     if throughput is not None:
         title = f"{title}\nthroughput {throughput:.3g} (of a fully open aperture's light)"
     ax.set_title(title)
     return save_figure(plt, fig, path)
+
+
+def _zoom_to_light(ax, m: torch.Tensor, ext) -> None:
+    """Where light passes through less than a quarter of the drawn area (a small aperture on a large grid), the
+    axes show the part that passes it, with a margin of a tenth of its size: the mask's pattern stays visible."""
+    lit = (m.abs() > 0) if m.dim() == 2 else (m.abs() > 0).any(0)
+    if not lit.any() or lit.double().mean() >= 0.25:
+        return
+    H, W = lit.shape
+    rows, cols = lit.any(1).nonzero().flatten(), lit.any(0).nonzero().flatten()
+    r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+    mr, mc = max(1, (r1 - r0) // 10), max(1, (c1 - c0) // 10)
+    r0, r1, c0, c1 = max(0, r0 - mr), min(H, r1 + mr), max(0, c0 - mc), min(W, c1 + mc)
+    if ext is None:  # axes in samples: pixel centres at integers
+        ax.set_xlim(c0 - 0.5, c1 - 0.5)
+        ax.set_ylim(r1 - 0.5, r0 - 0.5)
+        return
+    x = lambda c: ext[0] + (ext[1] - ext[0]) * c / W  # noqa: E731
+    y = lambda r: ext[3] + (ext[2] - ext[3]) * r / H  # noqa: E731  (rows run down from the top edge ext[3])
+    ax.set_xlim(x(c0), x(c1))
+    ax.set_ylim(y(r1), y(r0))
 
 
 def save_measurements(
