@@ -1,10 +1,12 @@
 """The learned masks of a photon-budget sweep side by side: one row per embedding size, one column per light level.
 
-    python examples/photons/mask_montage.py SWEEP_DIR OUT.png [--seed 0]
+    python examples/photons/mask_montage.py SWEEP_DIR OUT.png [--seed 0] [--redraw]
 
 Reads each finished learned cell's ``pictures/mask_final.png`` (its title states the mask's throughput) from
 ``SWEEP_DIR/cells/`` (a sweep of examples/photons/photon_budget.yaml, or its committed cells under
 docs/results/photons/), and the fixed LCD's mask of the same sweep as the starting point the learned ones begin from.
+``--redraw`` first redraws each cell's ``mask_final.png`` from its last checkpoint where the cell still has one
+(pictures drawn by another version of optoenc then look like today's).
 """
 
 from __future__ import annotations
@@ -23,6 +25,28 @@ def _cells(sweep_dir: Path, encoder: str, seed: int) -> dict[tuple[str, float], 
         if m:
             out[(m.group(1), float(m.group(2)))] = pic
     return out
+
+
+def redraw(sweep_dir: Path) -> int:
+    """Redraw ``pictures/mask_final.png`` of every finished LCD cell: a fixed one from its configuration, a learned
+    one where it kept its last checkpoint; how many."""
+    import torch
+
+    from optoenc.privacy.report import load_run
+    from optoenc.training import checkpoint_path, pictures
+
+    n = 0
+    for cell in sorted((sweep_dir / "cells").glob("encoder=*_slm,*")):
+        learned = cell.name.startswith("encoder=learned")
+        if not (cell / "summary.json").is_file() or (learned and not checkpoint_path(cell, "last").is_file()):
+            continue
+        _, enc, _ = load_run(cell, which="last")
+        with torch.no_grad():
+            mask = enc.mask()
+            pictures.save_mask(cell / "pictures" / "mask_final.png", mask, f"{enc.name} mask (final)",
+                               pictures.mask_spacing(enc, mask), throughput=enc.throughput())
+        n += 1
+    return n
 
 
 def montage(sweep_dir: Path, out: Path, seed: int = 0) -> Path | None:
@@ -56,7 +80,10 @@ def main(argv=None) -> None:
     p.add_argument("sweep_dir", type=Path, help="sweep folder (holding cells/)")
     p.add_argument("out", type=Path, help="PNG to write")
     p.add_argument("--seed", type=int, default=0, help="the seed whose masks are shown (default 0)")
+    p.add_argument("--redraw", action="store_true", help="first redraw the cells' mask pictures from their checkpoints")
     a = p.parse_args(argv)
+    if a.redraw:
+        print(f"{redraw(a.sweep_dir)} mask pictures redrawn")
     path = montage(a.sweep_dir, a.out, a.seed)
     if path is None:
         p.error(f"{a.sweep_dir}/cells: no finished learned_slm cell with pictures/mask_final.png for seed {a.seed}")
