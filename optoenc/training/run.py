@@ -310,7 +310,10 @@ def _pictures(parts: Parts, run: RunConfig, run_dir: Path, tag: str) -> None:
                                throughput=enc.throughput())
         n = run.output.examples
         if n and tag != "initial":
-            x, y = parts.splits.test[0][:n], parts.splits.test[1][:n]
+            # examples spread evenly over the test split: a split stored class by class (image_folder) still shows
+            # several classes, where its first n examples would all be of the first
+            pick = torch.linspace(0, len(parts.splits.test[0]) - 1, min(n, len(parts.splits.test[0]))).round().long()
+            x, y = parts.splits.test[0][pick], parts.splits.test[1][pick]
             emb = enc.add_sensor_noise(enc.measure(x.to(torch.float32)))
             pictures.save_measurements(
                 pic / "measurements.png", x, emb, y.tolist(), parts.splits.class_names,
