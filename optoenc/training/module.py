@@ -88,6 +88,11 @@ class EncoderDecoderModule(L.LightningModule):
         self.epoch_loop = epoch_loop
         self.automatic_optimization = epoch_loop is None  # the epoch loop steps the optimiser itself
 
+    def setup(self, stage: str) -> None:
+        from .quiet import quiet_if_asked
+
+        quiet_if_asked()  # a command-line run's spawned DDP workers are as quiet as its main process
+
     # --------------------------------------------------------------- forward
     def clean_embedding(self, x: torch.Tensor, augment: bool, draws: torch.Tensor | None = None) -> torch.Tensor:
         """Noise-free embedding of a batch (scenes, or precomputed embeddings).

@@ -235,6 +235,9 @@ def _log_interval(run: RunConfig, train_batches: int | None) -> int:
     dataset: Lightning would warn that it never logs within an epoch)."""
     if train_batches is None:
         return 50
+    devices = run.trainer.devices
+    if str(devices).isdigit() and run.trainer.strategy != "auto":  # each of N processes takes 1/N of the batches
+        train_batches = -(-train_batches // (int(devices) * run.trainer.num_nodes))
     limit = run.trainer.batch_limit("train")
     if isinstance(limit, float) and limit < 1:
         train_batches = int(train_batches * limit)
