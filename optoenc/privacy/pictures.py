@@ -9,7 +9,7 @@ import torch
 
 from ..training.pictures import new_figure, save_figure
 
-__all__ = ["save_rows", "save_frontier"]
+__all__ = ["save_rows", "save_frontier", "save_threat_frontiers"]
 
 
 def _show(ax, img: torch.Tensor) -> None:
@@ -63,6 +63,39 @@ def save_frontier(path: str | Path, rows: Sequence[dict], attack: str = "learned
     ax.set_ylabel("test accuracy [%]")
     ax.set_title("privacy-utility: up and to the left is better")
     ax.legend(fontsize=7)
+    return save_figure(plt, fig, path)
+
+
+def save_threat_frontiers(path: str | Path, best: Sequence[dict], threat_models: Sequence[str],
+                          chance: float | None = None) -> Path:
+    """One panel per threat model: test accuracy against the re-identification of that threat model's strongest
+    attack (``best``: :func:`optoenc.privacy.report.best_per_threat_model`'s rows), Wilson 95 % intervals as
+    horizontal bars, one curve per encoder over embedding sizes."""
+    plt, fig = new_figure((4.6 * len(threat_models), 4.4))
+    encoders = sorted({r["encoder"] for r in best})
+    colour = {e: f"C{k % 10}" for k, e in enumerate(encoders)}
+    for i, threat in enumerate(threat_models):
+        ax = fig.add_subplot(1, len(threat_models), i + 1)
+        for enc in encoders:
+            rs = sorted((r for r in best if r["encoder"] == enc and r["threat_model"] == threat
+                         and r.get("test_acc") == r.get("test_acc")), key=lambda r: _pixels(r["embedding"]))
+            if not rs:
+                continue
+            xs = [100 * float(r["reid_top1"]) for r in rs]
+            ys = [100 * float(r["test_acc"]) for r in rs]
+            err = [[x - 100 * float(r.get("reid_ci_low", r["reid_top1"])) for x, r in zip(xs, rs)],
+                   [100 * float(r.get("reid_ci_high", r["reid_top1"])) - x for x, r in zip(xs, rs)]]
+            ax.errorbar(xs, ys, xerr=err, marker="o", ms=4, capsize=2, label=enc, color=colour[enc])
+            for r, xv, yv in zip(rs, xs, ys):
+                ax.annotate(r["embedding"], (xv, yv), fontsize=6, xytext=(3, 2), textcoords="offset points")
+        if chance is not None:
+            ax.axvline(100 * chance, color="gray", ls=":", lw=1, label=f"chance {100 * chance:g} %")
+        ax.set_xlim(-2, 102)  # one scale in every panel: the threat models compare at a glance
+        ax.set_xlabel("re-identification top-1, strongest attack [%]")
+        ax.set_ylabel("test accuracy [%]")
+        ax.set_title(f"threat model: {threat}", fontsize=9)
+        ax.legend(fontsize=7)
+    fig.suptitle("privacy-utility: up and to the left is better", fontsize=9)
     return save_figure(plt, fig, path)
 
 

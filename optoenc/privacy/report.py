@@ -265,12 +265,16 @@ def measure_run(run_dir: Path, evaluate_kw: dict, overrides: Sequence[str] = (),
 
 def write_sweep(rows: Sequence[dict], out_dir: Path, chance: float) -> list[Path]:
     """The combined table (``privacy.csv``, ``privacy.md``), the strongest attack per cell and threat model
-    (``privacy_best.csv``) and the privacy-utility plots (learned and ADMM attackers) of a sweep."""
-    from .pictures import save_frontier
+    (``privacy_best.csv``) and the privacy-utility plots of a sweep: one panel per threat model with its
+    strongest attack (``privacy_utility.png``), and the learned and ADMM attackers' own."""
+    from .pictures import save_frontier, save_threat_frontiers
 
     out_dir = Path(out_dir)
+    best = best_per_threat_model(rows)
     paths = [write_table(rows, out_dir / "privacy.csv", out_dir / "privacy.md"), out_dir / "privacy.md",
-             write_table(best_per_threat_model(rows), out_dir / "privacy_best.csv")]
+             write_table(best, out_dir / "privacy_best.csv")]
+    if best:
+        paths.append(save_threat_frontiers(out_dir / "privacy_utility.png", best, THREAT_MODELS, chance))
     for attack in ("learned", "admm"):
         if any(r["attack"] == attack for r in rows):
             paths.append(save_frontier(out_dir / f"privacy_utility_{attack}.png", rows, attack, chance))
