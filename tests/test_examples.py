@@ -295,3 +295,16 @@ def test_privacy_headline_has_one_line_per_cell_with_each_threat_models_stronges
     assert len(lines) == 3
     assert lines[2] == ("| lens | 6x8 | 73.5 | admm | 10.0 [8.3, 12.0] | 14.0 | 0.51 | plaintext (N=1000) | "
                         "20.0 [17.6, 22.6] | 14.0 | 0.51 | - | - | - | - |")
+
+
+def test_privacy_regeneration_script_parses_and_names_existing_pieces():
+    """examples/privacy/regenerate.sh: valid bash, and every example script and spec it runs exists."""
+    import re
+    import subprocess
+
+    script = EXAMPLES / "privacy" / "regenerate.sh"
+    assert subprocess.run(["bash", "-n", str(script)], capture_output=True).returncode == 0
+    used = set(re.findall(r'\$HERE/([\w.]+)', script.read_text()))
+    assert used >= {"defence.yaml", "budget_study.py", "make_privacy.py"}
+    for name in used:
+        assert (EXAMPLES / "privacy" / name).is_file(), name
