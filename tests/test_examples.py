@@ -293,7 +293,7 @@ def test_privacy_headline_has_one_line_per_cell_with_each_threat_models_stronges
              "reid_ci_low": 0.176, "reid_ci_high": 0.226}]
     lines = mod.headline(best).splitlines()
     assert len(lines) == 3
-    assert lines[2] == ("| lens | 6x8 | 73.5 | admm | 10.0 [8.3, 12.0] | 14.0 | 0.51 | plaintext (N=1000) | "
+    assert lines[2] == ("| lens | 6x8 | 73.5 % | admm | 10.0 [8.3, 12.0] | 14.0 | 0.51 | plaintext (N=1000) | "
                         "20.0 [17.6, 22.6] | 14.0 | 0.51 | - | - | - | - |")
 
 

@@ -24,7 +24,8 @@ import shutil
 import sys
 from pathlib import Path
 
-from optoenc.privacy.report import read_table
+from optoenc.privacy.report import budget_text, read_table
+from optoenc.privacy.tables import acc_text, rate_text
 from optoenc.privacy.settings import THREAT_MODELS
 from optoenc.training.rundir import atomic_write_text
 
@@ -36,13 +37,8 @@ ENCODERS = ("lens", "coded_aperture", "diffuser", "fixed_slm", "learned_slm")
 EMBEDDINGS = ("24x32", "12x16", "6x8", "3x4")
 
 
-def _pct(v) -> str:
-    return "-" if v in ("", None) else f"{100 * float(v):.1f}"
-
-
 def _attack(r: dict) -> str:
-    n = r.get("n_pairs")
-    return f"{r['attack']} (N={int(n)})" if r["attack"] == "plaintext" and n not in ("", None) else r["attack"]
+    return f"{r['attack']} ({budget_text(r)})" if r["attack"] == "plaintext" else r["attack"]
 
 
 def headline(best: list[dict]) -> str:
@@ -50,19 +46,19 @@ def headline(best: list[dict]) -> str:
     re-identification top-1 with the Wilson 95 % interval, PSNR and SSIM."""
     by = {(r["encoder"], r["embedding"], r["threat_model"]): r for r in best}
     cells = [(e, s) for e in ENCODERS for s in EMBEDDINGS if any((e, s, t) in by for t in THREAT_MODELS)]
-    head = ["encoder", "embedding", "test acc [%]"]
+    head = ["encoder", "embedding", "test acc"]
     for t in THREAT_MODELS:
         head += [f"{t}: attack", "re-id [%] (95 % CI)", "PSNR [dB]", "SSIM"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for enc, emb in cells:
         first = next(by[(enc, emb, t)] for t in THREAT_MODELS if (enc, emb, t) in by)
-        line = [enc, emb, _pct(first.get("test_acc"))]
+        line = [enc, emb, acc_text(first)]
         for t in THREAT_MODELS:
             r = by.get((enc, emb, t))
             if r is None:
                 line += ["-"] * 4
                 continue
-            line += [_attack(r), f"{_pct(r['reid_top1'])} [{_pct(r['reid_ci_low'])}, {_pct(r['reid_ci_high'])}]",
+            line += [_attack(r), rate_text(r),
                      f"{float(r['psnr']):.1f}", f"{float(r['ssim']):.2f}"]
         lines.append("| " + " | ".join(line) + " |")
     return "\n".join(lines) + "\n"
