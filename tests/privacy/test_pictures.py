@@ -30,6 +30,6 @@ def test_threat_panels_plot_their_own_rows_with_wilson_bars(monkeypatch, tmp_pat
     assert known[0] == "threat model: known_mask" and known[1] == [("lens", [10.0, 99.0])]  # small embedding first
     assert plain[1] == []  # no plaintext rows: an empty panel, not another model's rows
     assert sorted(black[1]) == [("diffuser", [5.0]), ("lens", [40.0])]
-    # the 6x8 lens point's horizontal bar spans its Wilson interval, 8 % to 12 %
+    # the 6x8 lens point's horizontal bar spans its Wilson interval, 8 % to 12 % (1e-9: 100 * 0.08 in binary floats)
     bars = [seg for segs in known[2] for seg in segs]
     assert any(abs(seg[0][0] - 8.0) < 1e-9 and abs(seg[1][0] - 12.0) < 1e-9 for seg in bars)
