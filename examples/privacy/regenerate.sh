@@ -15,10 +15,7 @@ HERE="$(cd "$(dirname "$0")" && pwd)"
 export OMP_NUM_THREADS=1 MKL_NUM_THREADS=1
 mkdir -p "$W/budget"
 
-# 1. The defences' runs: variable patterns and privacy-aware training, 5 epochs each (examples/privacy/defence.yaml).
-optoenc sweep "$HERE/defence.yaml" --out "$W/defence" --workers 2 --threads 1
-
-# 2. Every attack on Table 1's FCNN seed-0 cameras (20 cells), 1,000 probes; two sizes at a time.
+# 1. Every attack on Table 1's FCNN seed-0 cameras (20 cells), 1,000 probes; two sizes at a time.
 A="--attacks admm,pinv,plaintext,learned,learned_conv --count 1000"
 run_sizes() {
     optoenc privacy --sweep "$T1" --match "*embedding=$1,decoder=fcnn,seed=0" --out "$W/privacy/$1" $A > "$W/privacy-$1.log" 2>&1 &
@@ -29,7 +26,7 @@ run_sizes 24x32 6x8
 run_sizes 12x16 3x4
 optoenc privacy --sweep "$T1" --match '*decoder=fcnn,seed=0' --out "$W/privacy/all" $A > "$W/privacy-all.log" 2>&1
 
-# 3. The budget study (pairs x maximum epochs) and the 4x larger attacker, lens, fixed and learned LCD at 6x8, 24x32.
+# 2. The budget study (pairs x maximum epochs) and the 4x larger attacker, lens, fixed and learned LCD at 6x8, 24x32.
 budget() {  # $1 file suffix, then budget_study.py options
     local suffix="$1"; shift
     for size in 6x8 24x32; do
@@ -45,6 +42,9 @@ budget() {  # $1 file suffix, then budget_study.py options
 }
 budget "" --pairs 1000,10000,60000 --epochs 5,15,50
 budget "-4x" --pairs 60000 --epochs 50 --hidden 1024 --channels 128
+
+# 3. The defences' runs: variable patterns and privacy-aware training, 5 epochs each (examples/privacy/defence.yaml).
+optoenc sweep "$HERE/defence.yaml" --out "$W/defence" --workers 2 --threads 1
 
 # 4. The defences against the same attackers.
 optoenc privacy --sweep "$W/defence" --defence --count 1000 \
