@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import functools
 import io
 import math
 import shutil
@@ -122,19 +123,24 @@ def _settings(run, protocol: dict) -> str:
     return _stored_settings(run.to_yaml(), protocol)
 
 
+@functools.lru_cache(maxsize=None)
+def _reference(names: tuple, overrides: tuple, augment: tuple) -> dict:
+    """The flattened configuration ``optoenc fit`` composes for these plugins, overrides and transforms."""
+    from optoenc.config import compose
+
+    return _flatten(yaml.safe_load(compose(overrides=list(overrides), names=dict(names), augment=list(augment)).to_yaml()))
+
+
 def _stored_settings(stored_yaml: str, protocol: dict | None = None) -> str:
     """What a stored configuration sets beyond ``optoenc fit``'s defaults for its plugins, embedding, transforms and
     seed (and ``protocol``): ``key=value`` pairs, settings this version no longer has included; ``default`` if none."""
-    from optoenc.config import compose
-
     cfg = yaml.safe_load(stored_yaml)
     flat = _flatten(cfg)
     names = {k: flat[f"{k}.name"] for k in ("encoder", "decoder", "dataset", "task") if flat.get(f"{k}.name")}
     emb = flat.get("sensor.embedding") or [24, 32]
     overrides = [f"sensor.embedding=[{emb[0]},{emb[1]}]", *(f"{k}={v}" for k, v in (protocol or {}).items())]
     try:
-        ref = _flatten(yaml.safe_load(compose(overrides=overrides, names=names, augment=list(cfg.get("augment") or {}),
-                                              seed=cfg.get("seed")).to_yaml()))
+        ref = _reference(tuple(sorted(names.items())), tuple(overrides), tuple(cfg.get("augment") or {}))
     except Exception as err:  # a plugin this environment does not have: say so rather than guess
         return f"(not comparable: {type(err).__name__})"
     diffs = []

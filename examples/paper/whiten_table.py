@@ -1,13 +1,13 @@
 """The whitening check beside Tables 1 and 3: docs/results/whiten.csv against table1.csv and table3.csv.
 
-For each learned-SLM cell of the whitening sweep (examples/paper/whiten.yaml, ``whiten_batchnorm_relu``)
+For each learned-SLM cell of the whitening sweep (examples/paper/explored/whiten.yaml, ``whiten_batchnorm_relu``)
 it prints the paper's figure, the table's learned SLM (BatchNorm+ReLU; mean over the table's seeds), the
 whitened learned SLM (and its re-simulation at the ``reference`` preset where the cell has one), the table's
 fixed SLM (``standardize``), the whitened fixed SLM (from whiten.csv, else table1_whiten.csv), and the
 learned-minus-fixed margin both ways.
 
 With ``--table1`` it prints Table 1's fixed encoders instead (docs/results/table1_whiten.csv, from
-examples/paper/table1_whiten.yaml): the table's figure (``standardize``), the whitened one, the paper's
+examples/paper/explored/table1_whiten.yaml): the table's figure (``standardize``), the whitened one, the paper's
 point-sampling sensor's (sampling.csv, where measured) and the paper's.
 
 The learned SLM's variant chosen on validation among all its committed runs: examples/paper/select_variant.py.
