@@ -344,7 +344,7 @@ def _figures(out: Path, planned1, agg1, planned3) -> None:
 
 
 def _pictures(planned, name: str, out: Path, title: str) -> Path | None:
-    from optoenc.training.pictures import _figure, _save
+    from optoenc.training.pictures import new_figure, save_figure
 
     pics = [(p.cell.name, p.path / "pictures" / name) for p in planned
             if p.run.names["encoder"].startswith("learned") and p.run.seed == 0 and (p.path / "pictures" / name).is_file()]
@@ -354,7 +354,7 @@ def _pictures(planned, name: str, out: Path, title: str) -> Path | None:
 
     cols = min(4, len(pics))
     rows = (len(pics) + cols - 1) // cols
-    plt, fig = _figure((4.2 * cols, 3.4 * rows))
+    plt, fig = new_figure((4.2 * cols, 3.4 * rows))
     for i, (cell, path) in enumerate(pics):
         ax = fig.add_subplot(rows, cols, i + 1)
         ax.imshow(mpimg.imread(path))
@@ -362,7 +362,7 @@ def _pictures(planned, name: str, out: Path, title: str) -> Path | None:
         ax.axis("off")
     fig.suptitle(title, fontsize=9)
     fig.tight_layout()
-    return _save(plt, fig, out)
+    return save_figure(plt, fig, out)
 
 
 # ------------------------------------------------------------------ import, write, check
