@@ -1,7 +1,7 @@
 """The learned SLM's training variant chosen on validation, for each of its cells in Tables 1 and 3.
 
 For each learned-SLM cell of Tables 1 and 3 (Table 3: the transforms drawn once, the paper's protocol) it takes
-every committed run of that cell (``docs/results/sweep_cells/*/*/``: ``config.yaml`` and ``summary.json``) that
+every committed run of that cell (``docs/results/explored/*/*/``: ``config.yaml`` and ``summary.json``) that
 keeps the paper's camera, data and budget, and selects the one with the highest *validation* accuracy: the
 hyperparameters chosen as the epoch is, on the validation split, and the selected run's test accuracy reported
 once beside the paper's.
@@ -16,7 +16,7 @@ schedule, weight decay, the embedding's normalisation, dropout, the mask's param
 noise level's gradient. A run of 200 epochs, another seed, or another d2 is not a candidate, nor is a rerun of
 the table's own knobs (at another precision, say): only the table's cell stands for them.
 
-    python examples/paper/select_variant.py [--results docs/results] [--out docs/results/selected]
+    python examples/paper/explored/select_variant.py [--results docs/results] [--out docs/results/explored/tables/selected]
 
 ``--out P`` also writes ``P.csv`` and ``P.md``. A tie in validation accuracy keeps the table's own cell, else the
 variant that changes fewer knobs, else the first by folder and name: never the test accuracy.
@@ -107,11 +107,11 @@ def _rows(path: Path) -> list[dict[str, str]]:
 
 def select(results: Path) -> list[dict]:
     """One row per learned-SLM cell of Tables 1 and 3 (seed 0): the table's run and the selected one."""
-    cells = [c for c in sorted((results / "sweep_cells").glob("*/*")) if c.is_dir()]
+    cells = [c for c in sorted((results / "explored").glob("*/*")) if c.is_dir()]
     configs = [(c, cfg) for c in cells if (cfg := _config(c)) is not None]
     paper = {}
-    for name, where in (("table1.csv", "table1"), ("table3.csv", "table3")):
-        for r in _rows(results / name):
+    for name, where in (("table1_mixed.csv", "table1_mixed"), ("table3_mixed.csv", "table3_mixed")):
+        for r in _rows(results / "explored" / "tables" / name):
             if r["encoder"] == "learned_slm" and r.get("augment_mode", "once") in ("once", ""):
                 paper[(r["embedding"], r["decoder"], r.get("transform", "original"))] = (where, float(r["paper_acc"]))
     out = []
@@ -131,7 +131,7 @@ def select(results: Path) -> list[dict]:
         # first by folder and name (never the test accuracy)
         candidates.sort(key=lambda item: (-item[1]["_summary"]["val_acc"], item[1] is not table,
                                           _variant(item[1], table).count(",") if item[1] is not table else 0,
-                                          str(item[0].relative_to(results / "sweep_cells"))))
+                                          str(item[0].relative_to(results / "explored"))))
         best_dir, best = candidates[0]
         val, test = 100 * best["_summary"]["val_acc"], 100 * best["_summary"]["test_acc"]
         out.append({
@@ -162,7 +162,7 @@ def _markdown(rows: list[dict]) -> str:
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--results", type=Path, default=Path(__file__).resolve().parents[2] / "docs" / "results")
+    ap.add_argument("--results", type=Path, default=Path(__file__).resolve().parents[3] / "docs" / "results")
     ap.add_argument("--out", type=Path, default=None, help="also write OUT.csv and OUT.md")
     args = ap.parse_args(argv)
     rows = select(args.results)
@@ -175,7 +175,7 @@ def main(argv=None) -> None:
             w.writerows({c: r.get(c, "") for c in COLUMNS} for r in rows)
         args.out.with_suffix(".md").write_text(
             "# The learned SLM's variant chosen on validation\n\nWritten by `python examples/paper/select_variant.py "
-            "--out docs/results/selected`; accuracies in percent, seed 0.\n\n" + text)
+            "--out docs/results/explored/tables/selected`; accuracies in percent, seed 0.\n\n" + text)
 
 
 if __name__ == "__main__":

@@ -1,13 +1,13 @@
 """Where Table 1's 6x8 logistic learned-SLM cell levels off: the validation-selected test accuracy against the budget.
 
-Reads committed cells under docs/results/sweep_cells/ (nothing is trained): the fastest settings found for the
+Reads committed cells under docs/results/explored/ (nothing is trained): the fastest settings found for the
 cell (the decoder's rate 1e-2, the mask's 3e-2) run for 200 epochs on seeds 0-2 (`training_knobs.yaml`), beside
 the table's own cell and the two camera/sensor changes that reach the paper's 91.9 % within 50 epochs (the paper's
 point-sampling sensor, `sampling.yaml`; the LCD at 16 mm, `slm_d2.yaml`). For each budget N it takes the epoch with
 the best validation accuracy among the first N (the first such epoch, as the runs' checkpoints do) and reads that
 epoch's test accuracy.
 
-    python examples/paper/ceiling_plot.py --out docs/results/ceiling_6x8_logistic.png
+    python examples/paper/explored/ceiling_plot.py --out docs/results/explored/figures/ceiling_6x8_logistic.png
 """
 
 from __future__ import annotations
@@ -17,14 +17,14 @@ import csv
 import statistics
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
-CELLS = ROOT / "docs" / "results" / "sweep_cells"
+ROOT = Path(__file__).resolve().parents[3]
+CELLS = ROOT / "docs" / "results" / "explored"
 PAPER = 91.9
 FAST = "embedding=6x8,decoder=logistic,encoder_lr=0.03,verify_preset=none,max_epochs=200,lr=0.01"
 SEEDS = {0: f"training_knobs/{FAST}", 1: f"training_knobs/{FAST},seed=1", 2: f"training_knobs/{FAST},seed=2"}
 OTHERS = {
-    "table (paper's knobs)": "table1/encoder=learned_slm,embedding=6x8,decoder=logistic,seed=0,verify_preset=reference",
-    "paper's point-sampling sensor": "sampling/encoder=learned_slm,embedding=6x8,decoder=logistic",
+    "table (paper's knobs)": "table1_mixed/encoder=learned_slm,embedding=6x8,decoder=logistic,seed=0,verify_preset=reference",
+    "paper's point-sampling sensor": "sampling_mixed/encoder=learned_slm,embedding=6x8,decoder=logistic",
     "LCD at 16 mm (paper: 4 mm)": "slm_d2/d2=0.016",
 }
 BUDGETS = (50, 100, 150, 200)

@@ -1,4 +1,4 @@
-"""The whitening check beside Tables 1 and 3: docs/results/whiten.csv against table1.csv and table3.csv.
+"""The whitening check beside Tables 1 and 3: docs/results/explored/tables/whiten.csv against table1.csv and table3.csv.
 
 For each learned-SLM cell of the whitening sweep (examples/paper/explored/whiten.yaml, ``whiten_batchnorm_relu``)
 it prints the paper's figure, the table's learned SLM (BatchNorm+ReLU; mean over the table's seeds), the
@@ -6,13 +6,13 @@ whitened learned SLM (and its re-simulation at the ``reference`` preset where th
 fixed SLM (``standardize``), the whitened fixed SLM (from whiten.csv, else table1_whiten.csv), and the
 learned-minus-fixed margin both ways.
 
-With ``--table1`` it prints Table 1's fixed encoders instead (docs/results/table1_whiten.csv, from
+With ``--table1`` it prints Table 1's fixed encoders instead (docs/results/explored/tables/table1_whiten.csv, from
 examples/paper/explored/table1_whiten.yaml): the table's figure (``standardize``), the whitened one, the paper's
 point-sampling sensor's (sampling.csv, where measured) and the paper's.
 
 The learned SLM's variant chosen on validation among all its committed runs: examples/paper/select_variant.py.
 
-    python examples/paper/whiten_table.py [--results docs/results] [--table1]
+    python examples/paper/explored/whiten_table.py [--results docs/results/explored/tables] [--table1]
 """
 
 from __future__ import annotations
@@ -37,10 +37,10 @@ def _fmt(v: float | None, signed: bool = False) -> str:
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--results", type=Path, default=Path(__file__).resolve().parents[2] / "docs" / "results")
+    ap.add_argument("--results", type=Path, default=Path(__file__).resolve().parents[3] / "docs" / "results" / "explored" / "tables")
     ap.add_argument("--table1", action="store_true", help="Table 1's fixed encoders, whitened (table1_whiten.csv)")
     args = ap.parse_args(argv)
-    tables = {"1": _rows(args.results / "table1.csv"), "3": _rows(args.results / "table3.csv")}
+    tables = {"1": _rows(args.results / "table1_mixed.csv"), "3": _rows(args.results / "table3_mixed.csv")}
     if args.table1:
         return _table1(args.results, tables["1"])
     wh = _rows(args.results / "whiten.csv")
@@ -80,7 +80,7 @@ def main(argv=None) -> None:
 
 
 def _table1(results: Path, table1: list[dict[str, str]]) -> None:
-    sampling = _rows(results / "sampling.csv")
+    sampling = _rows(results / "sampling_mixed.csv")
 
     def acc(rows, r, column="test_acc"):
         hit = [x for x in rows if (x["encoder"], x["embedding"], x["decoder"]) == (r["encoder"], r["embedding"], r["decoder"])]

@@ -1,6 +1,6 @@
 """Learned vs fixed SLM at 24x32 under each transform (drawn once): mean ± sample std over seeds, Welch t.
 
-    python examples/paper/seed_stats.py [CELLS]   # CELLS: default docs/results/table3_seeds
+    python examples/paper/explored/seed_stats.py [CELLS]   # CELLS: default docs/results/explored/table3_seeds
 
 Reads each cell's summary.json (validation-selected test accuracy) in CELLS, a sweep's cells folder of
 examples/paper/table3.yaml; cells with transforms redrawn every epoch are left out. The default folder holds
@@ -18,7 +18,7 @@ import statistics
 from pathlib import Path
 
 TRANSFORMS = ("shift", "rescale", "rotate", "perspective")
-RESULTS = Path(__file__).resolve().parents[2] / "docs" / "results"
+RESULTS = Path(__file__).resolve().parents[3] / "docs" / "results"
 
 
 def _wanted(name: str, encoder: str, transform: str) -> bool:
@@ -34,8 +34,8 @@ def accuracies(cells: Path, encoder: str, transform: str) -> list[float]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("cells", nargs="?", type=Path, default=RESULTS / "table3_seeds",
-                    help="a sweep's cells folder (default: docs/results/table3_seeds)")
+    ap.add_argument("cells", nargs="?", type=Path, default=RESULTS / "explored" / "table3_seeds",
+                    help="a sweep's cells folder (default: docs/results/explored/table3_seeds)")
     args = ap.parse_args()
     for t in TRANSFORMS:
         learned, fixed = accuracies(args.cells, "learned_slm", t), accuracies(args.cells, "fixed_slm", t)
