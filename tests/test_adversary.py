@@ -101,13 +101,13 @@ def test_training_module_hook():
     """The training step returns CE - lambda * MSE + MSE (same value, split gradients) and steps the adversary too."""
     from optoenc.encoders.slm import LearnedSLM
     from optoenc.plugins import get_registry
-    from optoenc.training.module import EncoderClassifier
+    from optoenc.training.module import EncoderDecoderModule
 
     enc = LearnedSLM(None, fidelity={"grid": (48, 64)}, sensor={"embedding": (6, 8)})
     cls = get_registry("decoder").get("fcnn")
     dec = cls(cls.Config(), in_shape=enc.output_shape, num_classes=10, learnable_encoder=True)
     adv = from_config(AdversaryConfig(adversary_weight=5.0, adversary_lr=3e-4), enc, (1, 28, 28))
-    module = EncoderClassifier(enc, dec, adversary=adv)
+    module = EncoderDecoderModule(enc, dec, adversary=adv)
     x, y = torch.rand(4, 1, 28, 28, generator=torch.Generator().manual_seed(0)), torch.arange(4)
     torch.manual_seed(0)
     loss = module.training_step((x, y), 0)
@@ -118,7 +118,7 @@ def test_training_module_hook():
     assert float(loss) == pytest.approx(float(ce + (1 - 5.0) * mse), abs=1e-5)
     groups = module.configure_optimizers().param_groups
     assert groups[-1]["lr"] == 3e-4 and {id(p) for p in groups[-1]["params"]} == {id(p) for p in adv.parameters()}
-    plain = EncoderClassifier(enc, dec)
+    plain = EncoderDecoderModule(enc, dec)
     torch.manual_seed(0)
     assert float(plain.training_step((x, y), 0)) == pytest.approx(float(ce), abs=1e-5)
     assert len(plain.configure_optimizers().param_groups) == 2

@@ -14,7 +14,7 @@ import torch
 
 from optoenc.decoders import Logistic
 from optoenc.training.callbacks import EpochLines
-from optoenc.training.module import EncoderClassifier
+from optoenc.training.module import EncoderDecoderModule
 
 METRICS = {"train_loss_epoch": torch.tensor(0.5), "train_acc": torch.tensor(0.8), "val_loss": torch.tensor(0.6),
            "val_acc": torch.tensor(0.7)}
@@ -33,7 +33,7 @@ def test_epoch_lines_are_printed_by_rank_zero_only(rank0):
         assert lines[0].startswith("epoch 1/3  train_loss 0.5000  train_acc 0.8000  val_loss 0.6000  val_acc 0.7000")
 
 
-class _Logged(EncoderClassifier):
+class _Logged(EncoderDecoderModule):
     """Records what the module logs instead of logging it."""
 
     def log(self, name, value, **kwargs):

@@ -143,8 +143,8 @@ def test_class_names_title_the_measurement_pictures(tmp_path, monkeypatch):
     from optoenc.training import pictures
 
     titles = []
-    real = pictures._save
-    monkeypatch.setattr(pictures, "_save", lambda plt, fig, path: titles.extend(a.get_title() for a in fig.axes) or real(plt, fig, path))
+    real = pictures.save_figure
+    monkeypatch.setattr(pictures, "save_figure", lambda plt, fig, path: titles.extend(a.get_title() for a in fig.axes) or real(plt, fig, path))
     x, emb = torch.rand(2, 1, 8, 6), torch.rand(2, 1, 3, 4)
     pictures.save_measurements(tmp_path / "named.png", x, emb, [1, 0], ("row", "column"))
     pictures.save_measurements(tmp_path / "numbered.png", x, emb, [1, 0])

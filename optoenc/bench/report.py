@@ -243,10 +243,10 @@ def _rows(reader) -> list[dict]:
 
 def save_pareto(rows: Iterable[dict], path) -> Path:
     """Log-log Pareto plot: cost vs error per encoder (learned: time per step; fixed: encode 10k digits)."""
-    from ..training.pictures import _figure, _save
+    from ..training.pictures import new_figure, save_figure
 
     rows = [r for r in rows if r["kind"] != "truth" and r["error"] is not None and r["error"] > 0]
-    plt, fig = _figure((12, 5))
+    plt, fig = new_figure((12, 5))
     panels = (
         (True, "step_s", "time per training step [s] (batch 200, FCNN)"),
         (False, "encode_s", "time to encode 10,000 digits, cache cold [s]"),
@@ -287,4 +287,4 @@ def save_pareto(rows: Iterable[dict], path) -> Path:
         ax.grid(True, which="both", alpha=0.3)
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=8)
-    return _save(plt, fig, path)
+    return save_figure(plt, fig, path)

@@ -219,110 +219,100 @@ class _Bar:
         self.bar.close()
 
 
-def _optics(args, extra) -> int:
-    from ..bench import optics
+def _measured(compute, table, *, before: tuple[str, ...] = (), csv=None):
+    """What every benchmark command prints: the machine's load, ``before``, a progress bar around
+    ``compute(bar)``, the rows' table (``table(rows)``), the load again and, with ``csv``, the path
+    ``csv(rows)`` wrote. Returns the rows."""
     from ..bench.machine import load_line
 
     print(load_line("start"))
-    print(optics.format_table(optics.run()))
+    for line in before:
+        print(line)
+    with _Bar() as bar:
+        rows = compute(bar)
+    print(table(rows))
     print(load_line("end"))
+    if csv is not None:
+        print(csv(rows))
+    return rows
+
+
+def _optics(args, extra) -> int:
+    from ..bench import optics
+
+    _measured(lambda bar: optics.run(), optics.format_table)
     return 0
 
 
 def _converge(args, extra) -> int:
     from ..bench import converge
-    from ..bench.machine import load_line
 
     encoders = _encoder_names(args)
-    print(load_line("start"))
-    with _Bar() as bar:
-        rows = converge.study(encoders, digits=args.digits, progress=bar)
-    print(converge.format_table(rows))
-    print(load_line("end"))
-    if args.out is not None:
-        print(converge.write_csv(rows, Path(args.out) / "converge.csv"))
+    _measured(lambda bar: converge.study(encoders, digits=args.digits, progress=bar), converge.format_table,
+              csv=None if args.out is None else lambda rows: converge.write_csv(rows, Path(args.out) / "converge.csv"))
     return 0
 
 
 def _precision(args, extra) -> int:
     from ..bench import precision
-    from ..bench.machine import load_line
     from ..hardware import native_bfloat16
 
     threads = _threads(args.threads)
     encoders = _encoder_names(args)
     emb = parse_hw("--embedding", args.embedding, "24x32")
     shape = parse_hw("--scene-shape", args.scene_shape, "109x146") if args.scene_shape else None
-    print(load_line("start"))
-    print(f"native bfloat16 products on this CPU (AMX or AVX512-BF16): {'yes' if native_bfloat16('cpu') else 'no'}")
-    with _Bar() as bar:
-        rows = precision.compare(encoders, emb, shape, repeats=args.repeats, threads=threads, progress=bar)
-    print(precision.format_table(rows))
-    print(load_line("end"))
-    if args.out is not None:
-        print(precision.write_csv(rows, Path(args.out) / "precision.csv"))
+    _measured(lambda bar: precision.compare(encoders, emb, shape, repeats=args.repeats, threads=threads, progress=bar),
+              precision.format_table,
+              before=(f"native bfloat16 products on this CPU (AMX or AVX512-BF16): {'yes' if native_bfloat16('cpu') else 'no'}",),
+              csv=None if args.out is None else lambda rows: precision.write_csv(rows, Path(args.out) / "precision.csv"))
     return 0
 
 
 def _steps(args, extra) -> int:
     from ..bench import steps
-    from ..bench.machine import load_line
 
     threads = _threads(args.threads)
     if not args.spec:
         raise ConfigError("--spec", None, "required by `optoenc bench steps` (a sweep spec, e.g. examples/paper/table3.yaml)")
-    print(load_line("start"))
-    with _Bar() as bar:
+    def compute(bar):
         rows = steps.time_steps(args.spec, args.only, repeats=args.repeats, threads=threads, progress=bar)
-    if args.only and not rows:
-        raise ConfigError("--only", ",".join(args.only), "matches no cell of the spec")
-    print(steps.format_table(rows))
-    print(load_line("end"))
+        if args.only and not rows:
+            raise ConfigError("--only", ",".join(args.only), "matches no cell of the spec")
+        return rows
+
+    _measured(compute, steps.format_table)
     return 0
 
 
 def _loop(args, extra) -> int:
     from ..bench import loop
-    from ..bench.machine import load_line
 
     threads = _threads(args.threads)
     if args.epochs < 2 or args.repeats < 1:
         raise ConfigError("--epochs" if args.epochs < 2 else "--repeats", args.epochs if args.epochs < 2 else args.repeats,
                           "--epochs >= 2 (the first is warm-up) and --repeats >= 1")
-    print(load_line("start"))
-    with _Bar() as bar:
-        rows = loop.compare(epochs=args.epochs, repeats=args.repeats, threads=threads, progress=bar)
-    print(loop.format_table(rows, threads))
-    print(load_line("end"))
+    _measured(lambda bar: loop.compare(epochs=args.epochs, repeats=args.repeats, threads=threads, progress=bar),
+              lambda rows: loop.format_table(rows, threads))
     return 0
 
 
 def _tasks(args, extra) -> int:
     from ..bench import speed
-    from ..bench.machine import load_line
 
     if args.repeats < 1 or args.threads < 1 or args.batch < 2:
         raise ConfigError("--repeats/--threads/--batch", (args.repeats, args.threads, args.batch),
                           "must be >= 1, >= 1 and >= 2")
-    print(load_line("start"))
-    with _Bar() as bar:
-        res = speed.task_steps(args.encoder, args.decoder, threads=args.threads, repeats=args.repeats,
-                               batch=args.batch, progress=bar)
-    print(speed.format_task_steps(res))
-    print(load_line("end"))
+    _measured(lambda bar: speed.task_steps(args.encoder, args.decoder, threads=args.threads, repeats=args.repeats,
+                                           batch=args.batch, progress=bar), speed.format_task_steps)
     return 0
 
 
 def _speed(args, extra) -> int:
     from ..bench import speed
-    from ..bench.machine import load_line
 
     threads = _thread_counts(args.threads)
-    print(load_line("start"))
-    with _Bar() as bar:
-        res = speed.interleaved(args.encoder, "default", threads=threads, repeats=args.repeats, progress=bar)
-    print(speed.format_speed(res))
-    print(load_line("end"))
+    _measured(lambda bar: speed.interleaved(args.encoder, "default", threads=threads, repeats=args.repeats, progress=bar),
+              speed.format_speed)
     return 0
 
 

@@ -173,7 +173,8 @@ def learned_attack(tgt: Target, name: str, train_scenes: torch.Tensor, learned_c
         reports.append(rep)
     budget = {"n_pairs": k, "val_pairs": reports[0].val_pairs, "max_epochs": lc.epochs,
               "epochs_run": ";".join(str(r.epochs_run) for r in reports),
-              "val_loss": sum(r.val_loss for r in reports) / len(reports), "attack_seeds": len(reports)}
+              "val_loss": sum(r.val_loss for r in reports) / len(reports), "attack_seeds": len(reports),
+              "attacker_size": lc.channels if LEARNED[name] == "conv" else lc.hidden}
     return recons, budget
 
 

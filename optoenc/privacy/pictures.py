@@ -7,7 +7,7 @@ from typing import Sequence
 
 import torch
 
-from ..training.pictures import _figure, _save
+from ..training.pictures import new_figure, save_figure
 
 __all__ = ["save_rows", "save_frontier"]
 
@@ -26,7 +26,7 @@ def save_rows(path: str | Path, rows: Sequence[tuple[str, torch.Tensor]], column
               title: str = "") -> Path:
     """One row per ``(label, (N, C, h, w) images)``, one column per example, rows labelled on the left."""
     n = max(len(r[1]) for r in rows)
-    plt, fig = _figure((1.4 * n + 1.2, 1.5 * len(rows) + 0.4))
+    plt, fig = new_figure((1.4 * n + 1.2, 1.5 * len(rows) + 0.4))
     for i, (label, imgs) in enumerate(rows):
         for j in range(len(imgs)):
             ax = fig.add_subplot(len(rows), n, i * n + j + 1)
@@ -39,12 +39,12 @@ def save_rows(path: str | Path, rows: Sequence[tuple[str, torch.Tensor]], column
                 ax.set_xlabel(f"{imgs.shape[-2]}x{imgs.shape[-1]} px", fontsize=7)
     if title:
         fig.suptitle(title, fontsize=9)
-    return _save(plt, fig, path)
+    return save_figure(plt, fig, path)
 
 
 def save_frontier(path: str | Path, rows: Sequence[dict], attack: str = "learned", chance: float | None = None) -> Path:
     """Test accuracy against re-identification (``attack``), one curve per encoder over embedding sizes."""
-    plt, fig = _figure((6.4, 4.6))
+    plt, fig = new_figure((6.4, 4.6))
     ax = fig.add_subplot(111)
     by_enc: dict[str, list[dict]] = {}
     for r in rows:
@@ -63,7 +63,7 @@ def save_frontier(path: str | Path, rows: Sequence[dict], attack: str = "learned
     ax.set_ylabel("test accuracy [%]")
     ax.set_title("privacy-utility: up and to the left is better")
     ax.legend(fontsize=7)
-    return _save(plt, fig, path)
+    return save_figure(plt, fig, path)
 
 
 def _pixels(embedding: str) -> int:

@@ -32,12 +32,13 @@ __all__ = [
 #: Table columns, in order (docs/results/privacy.csv). ``threat_model``: the attack's
 #: (:data:`~optoenc.privacy.settings.THREAT_MODEL`); ``n_pairs``: the attacker's (scene, embedding) pairs
 #: (plaintext, learned: validation part included); the learned attackers' budget ``val_pairs``,
-#: ``max_epochs``, ``epochs_run`` (per seed), their mean final ``val_loss``, ``attack_seeds`` and each seed's
-#: re-identification ``reid_seeds``; rates with their binomial standard error (``_se``) and Wilson 95 %
+#: ``max_epochs``, ``epochs_run`` (per seed), their mean final ``val_loss``, ``attack_seeds``, ``attacker_size``
+#: (the MLP's hidden units, the convolutional decoder's first channels) and each seed's re-identification
+#: ``reid_seeds``; rates with their binomial standard error (``_se``) and Wilson 95 %
 #: interval (``_ci_low``, ``_ci_high``); ``count``: probes.
 COLUMNS = (
     "encoder", "embedding", "threat_model", "attack", "n_pairs", "val_pairs", "max_epochs", "epochs_run", "val_loss",
-    "attack_seeds", "psnr", "psnr_std", "ssim", "ssim_std", "readability", "readability_se", "readability_ci_low",
+    "attack_seeds", "attacker_size", "psnr", "psnr_std", "ssim", "ssim_std", "readability", "readability_se", "readability_ci_low",
     "readability_ci_high", "reid_top1", "reid_top1_se", "reid_ci_low", "reid_ci_high", "reid_seeds", "test_acc",
     "count", "run",
 )

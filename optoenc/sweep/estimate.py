@@ -70,7 +70,7 @@ def training_step(run, scene_shape, scenes: torch.Tensor | None = None):
     from ..config import encoder_from_run
     from ..plugins import get_registry
     from ..training.augment_once import draws, store_transformed
-    from ..training.module import EncoderClassifier
+    from ..training.module import EncoderDecoderModule
     from ..training.run import canvas_for, precomputes, stores_transformed, task_of
 
     enc = encoder_from_run(run)
@@ -83,7 +83,7 @@ def training_step(run, scene_shape, scenes: torch.Tensor | None = None):
     canvas = canvas_for(run, enc, scene_shape[-2:]) if augs else None
     pre = precomputes(run, enc)
     stored = stores_transformed(run, enc)
-    module = EncoderClassifier(enc, dec, [] if pre else augs, canvas=canvas, lr=run.trainer.lr, precomputed=pre,
+    module = EncoderDecoderModule(enc, dec, [] if pre else augs, canvas=canvas, lr=run.trainer.lr, precomputed=pre,
                                stored_canvases=stored, task=task)
     opt = module.configure_optimizers()
     bs = run.trainer.batch_size

@@ -6,7 +6,7 @@ from pathlib import Path
 from typing import Any
 
 from ..training.callbacks import read_metrics
-from ..training.pictures import _figure, _save
+from ..training.pictures import new_figure, save_figure
 from ..training.rundir import RUN_FILES
 
 __all__ = ["sweep_plots"]
@@ -26,7 +26,7 @@ def accuracy_vs_embedding(summary: list[dict[str, Any]], path: Path) -> Path | N
     decoders = sorted({r["decoder"] for r in agg})
     if not agg or not all("x" in r["embedding"] for r in agg):
         return None
-    plt, fig = _figure((5.2 * len(decoders), 4.2))
+    plt, fig = new_figure((5.2 * len(decoders), 4.2))
     encoders = sorted({r["encoder"] for r in agg})
     colour = {e: f"C{k % 10}" for k, e in enumerate(encoders)}  # one colour per encoder in every panel
     for i, dec in enumerate(decoders):
@@ -44,7 +44,7 @@ def accuracy_vs_embedding(summary: list[dict[str, Any]], path: Path) -> Path | N
         ax.set_title(f"decoder: {dec}")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    return _save(plt, fig, path)
+    return save_figure(plt, fig, path)
 
 
 def learning_curves(planned, path: Path) -> Path | None:
@@ -62,7 +62,7 @@ def learning_curves(planned, path: Path) -> Path | None:
     n = len(curves)
     cols = min(3, n)
     rows_n = (n + cols - 1) // cols
-    plt, fig = _figure((5 * cols, 3.8 * rows_n))
+    plt, fig = new_figure((5 * cols, 3.8 * rows_n))
     for i, (enc, cs) in enumerate(sorted(curves.items())):
         ax = fig.add_subplot(rows_n, cols, i + 1)
         for name, ep, acc, col in cs:
@@ -74,7 +74,7 @@ def learning_curves(planned, path: Path) -> Path | None:
         if len(cs) <= 8:
             ax.legend(fontsize=6)
     fig.tight_layout()
-    return _save(plt, fig, path)
+    return save_figure(plt, fig, path)
 
 
 def sweep_plots(summary, planned, sweep_dir: Path) -> dict[str, Path]:

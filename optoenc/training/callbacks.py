@@ -71,7 +71,7 @@ def read_metrics(path: str | Path) -> list[dict[str, str]]:
 class EpochTest(L.Callback):
     """Measures test accuracy after every epoch (``test_acc_epoch``), for the paper's "best test" column.
 
-    Each batch is seeded exactly as :meth:`EncoderClassifier.on_test_batch_start`
+    Each batch is seeded exactly as :meth:`EncoderDecoderModule.on_test_batch_start`
     seeds the final test, and runs in the trainer's precision context as its
     test loop does, so the selected epoch's figure equals the reported test
     accuracy; the global RNG state is restored afterwards (training

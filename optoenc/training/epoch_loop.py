@@ -80,7 +80,7 @@ def batch_count(n: int, batch_size: int, limit: int | float = 1.0) -> int:
 
 
 def train_epoch(module, batch, batch_size: int, limit: int | float = 1.0) -> dict:
-    """Train ``module`` (an :class:`~optoenc.training.module.EncoderClassifier` of the classification task) on one
+    """Train ``module`` (an :class:`~optoenc.training.module.EncoderDecoderModule` of the classification task) on one
     shuffled epoch.
 
     ``batch`` is ``(embeddings, labels, ..., order)``: the split's tensors whole and the sampler's order

@@ -15,13 +15,13 @@ from ..tasks import Classification, Task
 from .epoch_loop import train_epoch
 from .seeding import eval_batch_seed, reseed, train_batch_seed
 
-__all__ = ["EncoderClassifier", "LOOP_KEY"]
+__all__ = ["EncoderDecoderModule", "LOOP_KEY"]
 
 #: Checkpoint entry naming the training loop that wrote it (``'batch'`` or ``'epoch'``).
 LOOP_KEY = "optoenc_loop"
 
 
-class EncoderClassifier(L.LightningModule):
+class EncoderDecoderModule(L.LightningModule):
     """Trains an optical encoder and a digital decoder together, for a task.
 
     Batches are ``(inputs, targets[, extra])``; the task (:class:`optoenc.tasks.Task`) gives the loss of the
@@ -87,6 +87,11 @@ class EncoderClassifier(L.LightningModule):
         self._train_totals: tuple = (0.0, 0)  # this epoch's (sum of batch losses x batch sizes, examples)
         self.epoch_loop = epoch_loop
         self.automatic_optimization = epoch_loop is None  # the epoch loop steps the optimiser itself
+
+    def setup(self, stage: str) -> None:
+        from .quiet import quiet_if_asked
+
+        quiet_if_asked()  # a command-line run's spawned DDP workers are as quiet as its main process
 
     # --------------------------------------------------------------- forward
     def clean_embedding(self, x: torch.Tensor, augment: bool, draws: torch.Tensor | None = None) -> torch.Tensor:

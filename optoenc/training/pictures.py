@@ -11,10 +11,11 @@ import torch
 
 from .rundir import atomic_write_bytes
 
-__all__ = ["spectral_psf", "psf_rgb", "save_psf", "save_mask", "mask_spacing", "save_measurements", "save_rows", "save_curves"]
+__all__ = ["new_figure", "save_figure", "spectral_psf", "psf_rgb", "save_psf", "save_mask", "mask_spacing", "save_measurements", "save_rows", "save_curves"]
 
 
-def _figure(figsize):
+def new_figure(figsize):
+    """``(pyplot, figure)``: a new figure of ``figsize`` inches on the non-interactive Agg backend."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -23,7 +24,8 @@ def _figure(figsize):
     return plt, plt.figure(figsize=figsize)
 
 
-def _save(plt, fig, path: str | Path) -> Path:
+def save_figure(plt, fig, path: str | Path) -> Path:
+    """Write ``fig`` as a PNG at ``path`` atomically (a reader never sees half a picture), close it; the path."""
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
     plt.close(fig)
@@ -99,7 +101,7 @@ def save_psf(path: str | Path, psf: torch.Tensor, spacing: tuple[float, float], 
     import matplotlib.colors as mcolors
 
     H, W = psf.shape[-2:]
-    plt, fig = _figure(_figsize((H, W), spacing))
+    plt, fig = new_figure(_figsize((H, W), spacing))
     ax = fig.add_subplot(111)
     img = psf_rgb(psf)  # peak 1, gamma 0.5 for display
     ax.imshow(img, extent=_extent_mm((H, W), spacing), cmap="gray" if img.ndim == 2 else None, vmin=0, vmax=1,
@@ -109,7 +111,7 @@ def save_psf(path: str | Path, psf: torch.Tensor, spacing: tuple[float, float], 
     # the bar's ticks are intensities (normalised to the peak) on the gamma-0.5 display scale
     _gray_bar(fig, ax, f"{kind} (normalised to peak; gamma 0.5 display)", mcolors.PowerNorm(0.5, vmin=0, vmax=1))
     ax.set_title(title or "intensity PSF")
-    return _save(plt, fig, path)
+    return save_figure(plt, fig, path)
 
 
 def mask_spacing(encoder, mask: torch.Tensor) -> tuple[float, float] | None:
@@ -143,7 +145,7 @@ def save_mask(
             stated under the title; None: not stated.
     """
     m = mask.detach().cpu()
-    plt, fig = _figure(_figsize(m.shape, spacing))
+    plt, fig = new_figure(_figsize(m.shape, spacing))
     ax = fig.add_subplot(111)
     ext = _extent_mm(m.shape, spacing)
     if m.is_complex():  # a phase mask: show the phase delay at the middle (green) wavelength
@@ -163,10 +165,32 @@ def save_mask(
             im = ax.imshow(m.squeeze().numpy(), cmap="gray", vmin=0, vmax=1, interpolation="nearest", extent=ext)
             fig.colorbar(im, ax=ax, label="amplitude transmittance (0 opaque, 1 clear)", fraction=0.046, pad=0.04)
     _axes_labels(ax, "on mask", spacing is not None)
+    _zoom_to_light(ax, m, ext)
     if throughput is not None:
         title = f"{title}\nthroughput {throughput:.3g} (of a fully open aperture's light)"
     ax.set_title(title)
-    return _save(plt, fig, path)
+    return save_figure(plt, fig, path)
+
+
+def _zoom_to_light(ax, m: torch.Tensor, ext) -> None:
+    """Where light passes through less than a quarter of the drawn area (a small aperture on a large grid), the
+    axes show the part that passes it, with a margin of a tenth of its size: the mask's pattern stays visible."""
+    lit = (m.abs() > 0) if m.dim() == 2 else (m.abs() > 0).any(0)
+    if not lit.any() or lit.double().mean() >= 0.25:
+        return
+    H, W = lit.shape
+    rows, cols = lit.any(1).nonzero().flatten(), lit.any(0).nonzero().flatten()
+    r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+    mr, mc = max(1, (r1 - r0) // 10), max(1, (c1 - c0) // 10)
+    r0, r1, c0, c1 = max(0, r0 - mr), min(H, r1 + mr), max(0, c0 - mc), min(W, c1 + mc)
+    if ext is None:  # axes in samples: pixel centres at integers
+        ax.set_xlim(c0 - 0.5, c1 - 0.5)
+        ax.set_ylim(r1 - 0.5, r0 - 0.5)
+        return
+    x = lambda c: ext[0] + (ext[1] - ext[0]) * c / W  # noqa: E731
+    y = lambda r: ext[3] + (ext[2] - ext[3]) * r / H  # noqa: E731  (rows run down from the top edge ext[3])
+    ax.set_xlim(x(c0), x(c1))
+    ax.set_ylim(y(r1), y(r0))
 
 
 def save_measurements(
@@ -189,7 +213,7 @@ def save_measurements(
     a, b = embeddings.shape[-2:]
     s_sp = None if scene_height is None else (scene_height / h, scene_height / h)
     e_sp = None if sensor_size is None else (sensor_size[0] / a, sensor_size[1] / b)
-    plt, fig = _figure((1.7 * max(n, 1) + 1.6, 4.2))
+    plt, fig = new_figure((1.7 * max(n, 1) + 1.6, 4.2))
     grid = fig.add_gridspec(2, n + 1, width_ratios=[1] * n + [0.08], hspace=0.35, wspace=0.15)
     for i in range(n):
         ax = fig.add_subplot(grid[0, i])
@@ -210,14 +234,14 @@ def save_measurements(
             ax2.set_ylabel(f"sensor embedding {a} x {b}{' [mm]' if e_sp else ' [px]'}", fontsize=8)
     fig.colorbar(_mappable(), cax=fig.add_subplot(grid[0, n]), label="intensity (0 to 1)")
     fig.colorbar(_mappable(), cax=fig.add_subplot(grid[1, n]), label="normalised to peak")
-    return _save(plt, fig, path)
+    return save_figure(plt, fig, path)
 
 
 def save_rows(path: str | Path, rows: Sequence[tuple[str, torch.Tensor]], title: str = "") -> Path:
     """A grid of images in [0, 1]: one row per ``(title, (N, C, h, w) images)``, one column per example (gray for
     one channel, RGB for three; a task's pictures, e.g. scene / embedding / reconstruction)."""
     n = max(len(t) for _, t in rows)
-    plt, fig = _figure((1.5 * max(n, 1) + 0.6, 1.6 * len(rows) + 0.4))
+    plt, fig = new_figure((1.5 * max(n, 1) + 0.6, 1.6 * len(rows) + 0.4))
     for r, (name, images) in enumerate(rows):
         for i in range(len(images)):
             ax = fig.add_subplot(len(rows), n, r * n + i + 1)
@@ -230,7 +254,7 @@ def save_rows(path: str | Path, rows: Sequence[tuple[str, torch.Tensor]], title:
                 ax.set_ylabel(name, fontsize=7)
     if title:
         fig.suptitle(title, fontsize=9)
-    return _save(plt, fig, path)
+    return save_figure(plt, fig, path)
 
 
 def _mappable():
@@ -247,7 +271,7 @@ def save_curves(path: str | Path, metrics_csv: str | Path) -> Path | None:
     rows = read_metrics(metrics_csv)
     if not rows:
         return None
-    plt, fig = _figure((8, 3.2))
+    plt, fig = new_figure((8, 3.2))
     from matplotlib.ticker import MaxNLocator
 
     epochs = [int(r["epoch"]) for r in rows]  # the epoch numbers of metrics.csv (0 = the first epoch)
@@ -260,4 +284,4 @@ def save_curves(path: str | Path, metrics_csv: str | Path) -> Path | None:
         ax.set_xlabel("epoch (as in metrics.csv)")
         ax.set_ylabel({"loss": "cross-entropy loss", "acc": "accuracy (fraction correct)"}[kind])
         ax.legend(fontsize=8)
-    return _save(plt, fig, path)
+    return save_figure(plt, fig, path)

@@ -29,7 +29,7 @@ from . import pictures
 from . import adversary, cache
 from .epoch_loop import resolve_loop
 from .loaders import encode, make_loader
-from .module import LOOP_KEY, EncoderClassifier
+from .module import LOOP_KEY, EncoderDecoderModule
 from .resume import clear_interrupted, interrupted_note, mark_failed, raise_on_signals, read_checkpoint
 from .rundir import RUN_FILES, atomic_write_text, write_json
 
@@ -43,7 +43,7 @@ log = logging.getLogger(__name__)
 class Parts:
     """Everything a run trains and evaluates."""
 
-    module: EncoderClassifier
+    module: EncoderDecoderModule
     splits: Any
     loaders: dict[str, Any]
     precomputed: bool
@@ -151,7 +151,7 @@ def build(run: RunConfig, progress: bool = False, loop: str | None = None) -> Pa
             expect={k: len(v[1]) for k, v in data.items()},
         )
         data = {k: (emb[k], y) for k, (_x, y) in data.items()}
-    module = EncoderClassifier(
+    module = EncoderDecoderModule(
         encoder,
         decoder,
         augs,
@@ -235,6 +235,9 @@ def _log_interval(run: RunConfig, train_batches: int | None) -> int:
     dataset: Lightning would warn that it never logs within an epoch)."""
     if train_batches is None:
         return 50
+    devices = run.trainer.devices
+    if str(devices).isdigit() and run.trainer.strategy != "auto":  # each of N processes takes 1/N of the batches
+        train_batches = -(-train_batches // (int(devices) * run.trainer.num_nodes))
     limit = run.trainer.batch_limit("train")
     if isinstance(limit, float) and limit < 1:
         train_batches = int(train_batches * limit)
@@ -310,7 +313,10 @@ def _pictures(parts: Parts, run: RunConfig, run_dir: Path, tag: str) -> None:
                                throughput=enc.throughput())
         n = run.output.examples
         if n and tag != "initial":
-            x, y = parts.splits.test[0][:n], parts.splits.test[1][:n]
+            # examples spread evenly over the test split: a split stored class by class (image_folder) still shows
+            # several classes, where its first n examples would all be of the first
+            pick = torch.linspace(0, len(parts.splits.test[0]) - 1, min(n, len(parts.splits.test[0]))).round().long()
+            x, y = parts.splits.test[0][pick], parts.splits.test[1][pick]
             emb = enc.add_sensor_noise(enc.measure(x.to(torch.float32)))
             pictures.save_measurements(
                 pic / "measurements.png", x, emb, y.tolist(), parts.splits.class_names,

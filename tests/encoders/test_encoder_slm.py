@@ -252,10 +252,10 @@ def test_learned_d2_steps_at_its_own_rate(scale):
     """Adam moves each parameter by about its learning rate per step, whatever its gradient: log d2 gets
     ``d2_lr_scale`` x the encoder's rate (at the mask's own rate d2 drifted from 4 to 0.3 mm in one epoch)."""
     from optoenc.decoders import Logistic
-    from optoenc.training.module import EncoderClassifier
+    from optoenc.training.module import EncoderDecoderModule
 
     enc = LearnedSLM({"learn_d2": True, "d2_lr_scale": scale}, **SMALL)
-    module = EncoderClassifier(enc, Logistic(None, in_shape=enc.output_shape), [], lr=1e-3, encoder_lr=1e-2)
+    module = EncoderDecoderModule(enc, Logistic(None, in_shape=enc.output_shape), [], lr=1e-3, encoder_lr=1e-2)
     opt = module.configure_optimizers()
     lrs = {id(p): g["lr"] for g in opt.param_groups for p in g["params"]}
     assert lrs[id(enc.logits)] == pytest.approx(1e-2) and lrs[id(enc.log_d2_scale)] == pytest.approx(1e-2 * scale)

@@ -17,17 +17,18 @@ from faultkit import TINY, run
 def figures(monkeypatch):
     """Capture each figure the picture helpers save (instead of reading PNG pixels)."""
     saved = []
-    orig = pictures._save
+    orig = pictures.save_figure
 
     def keep(plt, fig, path):
         saved.append(fig)
         fig.canvas.draw()
         snapshot = [(ax.get_xlabel(), ax.get_ylabel(), [im.get_extent() for im in ax.get_images()], ax.get_aspect())
                     for ax in fig.axes]
+        fig._limits = [(ax.get_xlim(), ax.get_ylim()) for ax in fig.axes if ax.get_images()]
         fig._snapshot = snapshot
         return orig(plt, fig, path)
 
-    monkeypatch.setattr(pictures, "_save", keep)
+    monkeypatch.setattr(pictures, "save_figure", keep)
     return saved
 
 
@@ -57,6 +58,28 @@ def test_slm_mask_in_millimetres_of_the_panel(tmp_path, figures):
     # 384 x 160 sub-pixels at 73.0 x 219.3 um: the 28.0 x 35.1 mm panel (its cells' outer edges one cell apart)
     assert ext[1] - ext[0] == pytest.approx(160 * 219.25e-3, rel=1e-3)
     assert ext[2] - ext[3] == pytest.approx(384 * 73.03e-3, rel=1e-3)
+
+
+def test_a_small_aperture_is_shown_zoomed_to_its_light(tmp_path, figures):
+    """The LCD's lit cells cover 1.8 % of its panel: the axes show them (and a tenth of their size around), not the
+    dark panel; the extent stays the panel's, so the millimetres are still true. A mask lit over its whole area
+    keeps the full view."""
+    enc = encoder_from_run(compose(names={"encoder": "fixed_slm"}))
+    mask = enc.mask()
+    spacing = pictures.mask_spacing(enc, mask)
+    pictures.save_mask(tmp_path / "m.png", mask, "mask", spacing)
+    (xlim, ylim), = figures[-1]._limits
+    lit = (mask.abs() > 0).nonzero()
+    rows = (int(lit[:, 0].min()), int(lit[:, 0].max()) + 1)
+    cols = (int(lit[:, 1].min()), int(lit[:, 1].max()) + 1)
+    H, W = mask.shape
+    width_mm = (cols[1] - cols[0]) * spacing[1] * 1e3
+    assert width_mm < abs(xlim[1] - xlim[0]) <= 1.25 * width_mm  # the lit columns plus a margin
+    assert abs(ylim[0] - ylim[1]) <= 1.25 * (rows[1] - rows[0]) * spacing[0] * 1e3
+    assert ylim[0] > ylim[1]  # rows still run down
+    pictures.save_mask(tmp_path / "o.png", torch.ones(8, 8), "open")
+    (xlim, ylim), = figures[-1]._limits
+    assert xlim == pytest.approx((-0.5, 7.5))  # the whole 8 x 8 samples
 
 
 def test_psf_picture_has_a_normalised_colour_bar(tmp_path, figures):

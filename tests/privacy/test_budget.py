@@ -24,7 +24,7 @@ def test_budget_study_writes_one_row_per_grid_point(tmp_path, capsys):
     out = _script().main([
         "--encoder", "lens", "--out", str(tmp_path / "budget.csv"), "--pairs", "100,200,100000", "--epochs", "1,3",
         "--attacks", "learned,learned_conv", "--seeds", "1", "--probes", "20", "--gallery", "10", "--patience", "1",
-        "sensor.embedding=[6,8]", "fidelity.preset=fast", "dataset.train_size=600", "dataset.val_size=200",
+        "--hidden", "24", "--channels", "12", "sensor.embedding=[6,8]", "fidelity.preset=fast", "dataset.train_size=600", "dataset.val_size=200",
         "dataset.test_size=300", f"trainer.cache_dir={tmp_path / 'cache'}",
     ])
     rows = read_table(out)
@@ -33,6 +33,7 @@ def test_budget_study_writes_one_row_per_grid_point(tmp_path, capsys):
     assert grid == [(a, n, e) for a in ("learned", "learned_conv") for n in (100, 200, 600) for e in (1, 3)]
     for r in rows:
         assert r["threat_model"] == "black_box" and r["count"] == 20 and r["attack_seeds"] == 1
+        assert r["attacker_size"] == (12 if r["attack"] == "learned_conv" else 24)  # --channels, --hidden
         assert 1 <= float(r["epochs_run"]) <= r["max_epochs"] and r["val_loss"] > 0
         assert r["val_pairs"] == round(0.1 * r["n_pairs"])
         assert r["reid_ci_low"] <= r["reid_top1"] <= r["reid_ci_high"]
