@@ -85,7 +85,8 @@ def cmd_sweep(args: argparse.Namespace, extra) -> int:
         with tqdm(total=len(todo), desc="cells", unit="cell", disable=not sys.stderr.isatty()) as bar:
             def done(p, ok, err):
                 bar.update(1)
-                msg = f"{'done' if ok else 'FAILED'} {p.cell.name}" + (f": {err}" if err else "")
+                word = "left" if ok and err.startswith(sweep.SKIPPED) else "done" if ok else "FAILED"
+                msg = f"{word} {p.cell.name}" + (f": {err}" if err else "")
                 (bar.write if sys.stderr.isatty() else lambda m: print(m, file=sys.stderr))(msg)
 
             failures = sweep.run(planned, out, workers=args.workers, executor=args.executor,

@@ -14,12 +14,12 @@ plots. Usable from Python::
 """
 
 from .collect import aggregate, cell_rows, write_tables
-from .runner import (EXECUTORS, ORDERS, STARTS, PlannedCell, cell_threads, claim, longest_first, machine_share, plan,
-                     resolve_threads, run, thread_budget)
+from .runner import (EXECUTORS, ORDERS, SKIPPED, STARTS, PlannedCell, cell_threads, claim, longest_first, machine_share,
+                     plan, resolve_threads, run, thread_budget)
 from .spec import Cell, SweepSpec, load_spec
 
 __all__ = [
     "Cell", "SweepSpec", "load_spec", "PlannedCell", "plan", "run", "thread_budget", "resolve_threads", "EXECUTORS",
-    "ORDERS", "STARTS", "longest_first", "cell_threads", "claim", "machine_share",
+    "ORDERS", "STARTS", "SKIPPED", "longest_first", "cell_threads", "claim", "machine_share",
     "cell_rows", "aggregate", "write_tables",
 ]

@@ -9,11 +9,14 @@ from typing import Any
 from ..training.rundir import RUN_FILES, write_json
 from .spec import PLUGIN_KEYS, Cell, SweepSpec, _flatten
 
-__all__ = ["compose_cell", "cell_dir", "cell_state", "STATUS", "CLOCK", "add_clock", "read_clock", "VOLATILE_KEYS",
+__all__ = ["compose_cell", "cell_dir", "cell_state", "STATUS", "CLOCK", "CLAIM", "claim_cell", "release_cell", "add_clock",
+           "read_clock", "VOLATILE_KEYS",
            "config_differences"]
 
 #: The per-cell status file (``state``: running, finished, failed; ``error``; times).
 STATUS = "status.json"
+#: The per-cell claim: created exclusively by the sweep process that is about to run the cell (its pid and host).
+CLAIM = "claim.json"
 #: The per-cell machine clock, written by the sweep around each of the cell's processes (see :func:`add_clock`).
 CLOCK = "clock.json"
 #: Settings of the machine or worker, not of the experiment (like a thread count, they change at most
@@ -120,6 +123,46 @@ def _alive(pid, host) -> bool:
     except PermissionError:
         return True
     return True
+
+
+def claim_cell(path: Path) -> str | None:
+    """Claim the cell at ``path`` for this process before running it: None where the claim is ours, else why
+    the cell is not to run here (another live process holds it, or it finished since it was planned).
+
+    Two sweeps over one folder plan their cells independently; without a claim both would start the same
+    cell and train it twice into one folder. The claim file is created with ``O_CREAT | O_EXCL``, so of
+    two processes racing for a cell exactly one gets it; a claim whose process is gone is taken over.
+    """
+    import os
+    import socket
+
+    if (path / RUN_FILES["summary"]).is_file():
+        return "finished by another sweep"
+    me = json.dumps({"pid": os.getpid(), "host": socket.gethostname()})
+    for _ in range(2):
+        try:
+            fd = os.open(path / CLAIM, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            try:
+                owner = json.loads((path / CLAIM).read_text())
+            except (OSError, ValueError):  # being written this instant: held
+                return "claimed by another sweep"
+            if _alive(owner.get("pid"), owner.get("host")):
+                return f"run by another sweep (pid {owner.get('pid')})"
+            (path / CLAIM).unlink(missing_ok=True)  # its process is gone: take it over
+            continue
+        with os.fdopen(fd, "w") as f:
+            f.write(me)
+        if (path / RUN_FILES["summary"]).is_file():  # finished between the check and the claim
+            release_cell(path)
+            return "finished by another sweep"
+        return None
+    return "claimed by another sweep"
+
+
+def release_cell(path: Path) -> None:
+    """Give up this process's claim on the cell at ``path`` (:func:`claim_cell`)."""
+    (path / CLAIM).unlink(missing_ok=True)
 
 
 def add_clock(path: Path, seconds: float) -> dict:

@@ -21,7 +21,7 @@ from typing import Callable, Iterable
 from ..errors import ConfigError
 from ..training.rundir import RUN_FILES, atomic_write_text
 from .launch import STARTS, launch, resolve_start
-from .cells import add_clock, cell_dir, cell_state, compose_cell, config_differences
+from .cells import add_clock, cell_dir, cell_state, claim_cell, compose_cell, config_differences, release_cell
 from .spec import Cell, SweepSpec
 
 __all__ = ["PlannedCell", "plan", "run", "thread_budget", "resolve_threads", "cell_threads", "claim",
@@ -200,6 +200,10 @@ class _Running:
             proc.wait()
 
 
+#: How :func:`run` reports a cell it left to another sweep over the same folder (``ok`` True, this message).
+SKIPPED = "skipped"
+
+
 def _run_local(p: PlannedCell, threads: int, running: _Running, start: str, budget: _Budget, position: int,
                held: int) -> tuple[bool, str]:
     """Run the cell in its own process (``start``: forkserver or subprocess) with ``threads`` torch threads and
@@ -208,18 +212,24 @@ def _run_local(p: PlannedCell, threads: int, running: _Running, start: str, budg
     if not budget.take(position, held):
         return False, "not started: the sweep was interrupted"
     try:
-        with running.lock:
-            if running.stopping:
-                return False, "not started: the sweep was interrupted"
-            launched = time.monotonic()
-            proc = launch(p.path, threads, start)
-            running.procs[p.cell.name] = proc
+        other = claim_cell(p.path)  # a second sweep over the same folder may have started or finished it
+        if other is not None:
+            return True, f"{SKIPPED}: {other}"
         try:
-            proc.wait()
-        finally:
-            add_clock(p.path, time.monotonic() - launched)
             with running.lock:
-                running.procs.pop(p.cell.name, None)
+                if running.stopping:
+                    return False, "not started: the sweep was interrupted"
+                launched = time.monotonic()
+                proc = launch(p.path, threads, start)
+                running.procs[p.cell.name] = proc
+            try:
+                proc.wait()
+            finally:
+                add_clock(p.path, time.monotonic() - launched)
+                with running.lock:
+                    running.procs.pop(p.cell.name, None)
+        finally:
+            release_cell(p.path)
     finally:
         budget.give(held)
     return proc.returncode == 0, _error(p)
