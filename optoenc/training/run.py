@@ -236,7 +236,7 @@ def _log_interval(run: RunConfig, train_batches: int | None) -> int:
     if train_batches is None:
         return 50
     devices = run.trainer.devices
-    if str(devices).isdigit() and run.trainer.strategy != "auto":  # each of N processes takes 1/N of the batches
+    if str(devices).isdigit():  # each of N processes takes 1/N of the batches (Lightning's "auto" too picks DDP)
         train_batches = -(-train_batches // (int(devices) * run.trainer.num_nodes))
     limit = run.trainer.batch_limit("train")
     if isinstance(limit, float) and limit < 1:
