@@ -34,3 +34,17 @@ def test_a_hand_edit_is_caught(tmp_path, capsys):
     table.write_text("\n".join(lines) + "\n")
     assert mr.main(["--out", str(copy), "--check"]) == 1
     assert "cost.csv:2: committed" in capsys.readouterr().err
+
+
+def test_example_embeddings_are_kept_for_the_figure_cells_only():
+    """embeddings.png is redrawn from the committed cells: Table 1's seed-0 FCNN cells at the figure's sizes keep
+    their example embeddings (one per encoder and size), no other cell carries them."""
+    mr = _make_results()
+    from optoenc import sweep
+
+    planned = sweep.plan(sweep.load_spec(mr.HERE / "table1.yaml"), RESULTS / "cells" / "table1")
+    finished = [p for p in planned if p.state == "finished"]
+    assert finished
+    for p in finished:
+        kept = (p.path / "pictures" / "measurements.png").is_file()
+        assert kept == mr._shows_embeddings(p.run), p.cell.name

@@ -9,7 +9,8 @@ The headline (Tables 1 and 3: examples/paper/table1.yaml, table3.yaml) is traine
 ``optoenc fit`` gives a user; the like-for-like checks with the paper's point-sampling sensor
 (sampling.yaml, table3_sampling.yaml) differ from them in ``sensor.sampling`` only. Each spec's finished
 cells live in ``docs/results/cells/<spec>/cells/<cell>/`` (config.yaml, summary.json, metrics.csv and, for
-learned encoders, the trained PSF and mask pictures; never checkpoints): a cell counts where its stored
+learned encoders, the trained PSF and mask pictures, and for Table 1's seed-0 FCNN cells at 24x32 and 6x8 the
+example embeddings; never checkpoints): a cell counts where its stored
 configuration is the spec's. Table 2 (relative drop 24x32 -> 3x4) comes from Table 1, Table 4 (relative drop
 under each transform) from Tables 1 and 3, and the paper's drops the same way from its own tables.
 Everything explored beyond the defaults (``docs/results/explored/<spec>/<cell>/``, read as stored) is one
@@ -65,6 +66,8 @@ EXPLORED_COLUMNS = ("spec", "encoder", "embedding", "decoder", "transform", "set
 COST_COLUMNS = ("table", "cells", "finished", "cell_hours", "machines")
 ENCODERS = ("lens", "coded_aperture", "diffuser", "fixed_slm", "learned_slm")
 EMBEDDINGS = ("24x32", "12x16", "6x8", "3x4")
+#: Table 1's cells whose example embeddings (``pictures/measurements.png``) are kept for ``embeddings.png``.
+EXAMPLE_EMBEDDINGS = ((24, 32), (6, 8))
 TRANSFORMS = ("original", "shift", "rescale", "rotate", "perspective")
 
 
@@ -341,24 +344,36 @@ def _figures(out: Path, planned1, agg1, planned3) -> None:
     plots.learning_curves(planned3, out / "table3_curves.png")
     _pictures(planned1, "psf_final.png", out / "learned_psfs.png", "learned PSFs (Table 1, seed 0)")
     _pictures(planned1, "mask_final.png", out / "learned_masks.png", "learned masks (Table 1, seed 0)")
+    _pictures(planned1, "measurements.png", out / "embeddings.png",
+              "example embeddings (Table 1, FCNN, seed 0; top row the scene, bottom row the sensor)", learned=False,
+              cols=2, panel=(7.2, 2.2))
 
 
-def _pictures(planned, name: str, out: Path, title: str) -> Path | None:
+def _shows_embeddings(run) -> bool:
+    """The cells whose example embeddings are kept: seed 0, FCNN, at 24x32 and 6x8 (one per encoder and size)."""
+    return (run.seed == 0 and run.names["decoder"] == "fcnn"
+            and tuple(run.sensor.embedding) in EXAMPLE_EMBEDDINGS)
+
+
+def _pictures(planned, name: str, out: Path, title: str, learned: bool = True, cols: int = 4,
+              panel: tuple[float, float] = (4.2, 3.4)) -> Path | None:
+    """A montage of one picture per cell (seed 0; of the learned encoders only with ``learned``)."""
     from optoenc.training.pictures import new_figure, save_figure
 
     pics = [(p.cell.name, p.path / "pictures" / name) for p in planned
-            if p.run.names["encoder"].startswith("learned") and p.run.seed == 0 and (p.path / "pictures" / name).is_file()]
+            if (p.run.names["encoder"].startswith("learned") or not learned) and p.run.seed == 0
+            and (p.path / "pictures" / name).is_file()]
     if not pics:
         return None
     import matplotlib.image as mpimg
 
-    cols = min(4, len(pics))
+    cols = min(cols, len(pics))
     rows = (len(pics) + cols - 1) // cols
-    plt, fig = new_figure((4.2 * cols, 3.4 * rows))
+    plt, fig = new_figure((panel[0] * cols, panel[1] * rows))
     for i, (cell, path) in enumerate(pics):
         ax = fig.add_subplot(rows, cols, i + 1)
         ax.imshow(mpimg.imread(path))
-        ax.set_title(cell.replace("encoder=", "").replace(",", " ")[:48], fontsize=7)
+        ax.set_title(cell.replace("encoder=", "").replace(",", " ")[:64], fontsize=7)
         ax.axis("off")
     fig.suptitle(title, fontsize=9)
     fig.tight_layout()
@@ -377,8 +392,11 @@ def import_cells(name: str, sweep_dir: Path, cells_root: Path) -> int:
         dest.mkdir(parents=True, exist_ok=True)
         for f in ("config.yaml", "summary.json", "metrics.csv"):
             shutil.copyfile(p.path / f, dest / f)
-        for f in ("psf_final.png", "mask_final.png"):
-            if p.run.names["encoder"].startswith("learned") and (p.path / "pictures" / f).is_file():
+        pictures = ["psf_final.png", "mask_final.png"] if p.run.names["encoder"].startswith("learned") else []
+        if name == "table1" and _shows_embeddings(p.run):
+            pictures.append("measurements.png")
+        for f in pictures:
+            if (p.path / "pictures" / f).is_file():
                 (dest / "pictures").mkdir(exist_ok=True)
                 shutil.copyfile(p.path / "pictures" / f, dest / "pictures" / f)
         n += 1
