@@ -57,8 +57,8 @@ def test_every_paper_sweep_spec_composes_and_names_its_paper_figures(tmp_path, m
 
 
 def _every_spec(tmp_path, sweep, ConfigError, pytest):
-    specs = sorted((EXAMPLES / "paper").glob("*.yaml")) + sorted((EXAMPLES / "paper" / "explored").glob("*.yaml"))
-    assert len(specs) >= 18
+    specs = sorted(p for p in EXAMPLES.rglob("*.yaml") if "\naxes:" in p.read_text())  # sweep specs, not run configs
+    assert len(specs) >= 18 and EXAMPLES / "privacy" / "defence.yaml" in specs
     for path in specs:
         spec = sweep.load_spec(path)
         planned = sweep.plan(spec, tmp_path / spec.name)  # composes and validates every cell's configuration
@@ -247,3 +247,28 @@ def test_ceiling_plot_reads_the_budget_curve_off_the_committed_cells(capsys, tmp
     assert printed[-1] == str(out_png) and out_png.stat().st_size > 10_000
     assert [p.name for p in tmp_path.iterdir()] == ["ceiling.png"]
     assert any(line.startswith("200 | ") for line in printed)
+
+
+def _budget_row(pairs, epochs, reid, size=256, attacker="default"):
+    from optoenc.privacy.stats import wilson
+
+    lo, hi = wilson(reid, 1000)
+    return {"encoder": "lens", "embedding": "6x8", "attack": "learned", "n_pairs": float(pairs),
+            "max_epochs": float(epochs), "epochs_run": float(epochs), "reid_top1": reid, "reid_ci_low": lo,
+            "reid_ci_high": hi, "attacker_size": float(size), "val_loss": 0.03, "test_acc": 0.7, "attacker": attacker}
+
+
+def test_budget_table_says_where_an_attacker_levels_off(tmp_path):
+    """examples/privacy/budget_table.py: a grid whose largest budget is inside its neighbours' Wilson intervals
+    has levelled off, one still rising by 10 points has not; the 4x attacker is paired with the default one at
+    the same grid point."""
+    spec = importlib.util.spec_from_file_location("budget_table", EXAMPLES / "privacy" / "budget_table.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    flat = {(p, e): _budget_row(p, e, 0.30 + (0.01 if (p, e) == (60000, 50) else 0)) for p in (1000, 60000) for e in (5, 50)}
+    rising = {**flat, (60000, 50): _budget_row(60000, 50, 0.40)}
+    assert mod.levelled(flat) and not mod.levelled(rising)
+    rows = [*flat.values(), _budget_row(60000, 50, 0.33, size=1024, attacker="4x")]
+    (paired,) = mod.size_rows(rows)
+    assert (paired["size"], paired["size_4x"], paired["change_pts"]) == (256.0, 1024.0, "+2.0")
+    assert "levelled off at 60000 pairs" in mod.budget_markdown(rows)

@@ -46,6 +46,9 @@ def add_parsers(sub) -> None:
         "(admm_search, learned_one) are noted and skipped on a single-pattern camera.")
     _source_options(p)
     p.add_argument("--sweep", metavar="DIR", help="a folder of run directories: one table and the privacy-utility plot")
+    p.add_argument("--match", metavar="PATTERN", default="*",
+                   help="with --sweep: only the run directories whose name matches this shell pattern, e.g. "
+                   "'*decoder=fcnn,seed=0' (default: all)")
     p.add_argument("--attacks", default=",".join(ATTACKS), help=f"comma-separated attacks: {', '.join(ATTACKS)}")
     p.add_argument("--count", type=int, help=f"test digits attacked (default {PrivacyConfig().count})")
     p.add_argument("--gallery", type=int, help=f"re-identification gallery size (default {PrivacyConfig().gallery})")
@@ -222,6 +225,8 @@ def _evaluate_kw(args) -> dict:
 def privacy(args: argparse.Namespace, extra) -> int:
     from ..privacy import report
 
+    if args.match != "*" and not args.sweep:
+        raise ConfigError("--match", args.match, "only with --sweep DIR (it picks run directories of the folder)")
     if args.defence and not args.sweep:
         raise ConfigError("--defence", True, "needs --sweep DIR (the baseline and the defended runs side by side)")
     kw = _evaluate_kw(args)
@@ -230,7 +235,7 @@ def privacy(args: argparse.Namespace, extra) -> int:
     chance = 1.0 / kw["config"].gallery
     if args.sweep:
         rows, cells = [], []
-        for cell in report.sweep_cells(args.sweep):
+        for cell in report.sweep_cells(args.sweep, args.match):
             print(f"{cell.name}", file=sys.stderr)
             cells.append((cell, report.measure_run(cell, kw, split_overrides(extra), args.force, say, note=note)))
             rows += cells[-1][1]

@@ -13,6 +13,7 @@ measured again (delete it to re-measure), so an interrupted sweep resumes.
 from __future__ import annotations
 
 import csv
+import fnmatch
 import io
 import json
 import math
@@ -80,14 +81,20 @@ def run_rows(result, encoder, summary: dict, run_label: str) -> list[dict[str, A
     ]
 
 
-def sweep_cells(sweep_dir: str | Path) -> list[Path]:
-    """Run directories (with config.yaml and summary.json) directly under ``sweep_dir``, sorted."""
+def sweep_cells(sweep_dir: str | Path, match: str = "*") -> list[Path]:
+    """Run directories (with config.yaml and summary.json) directly under ``sweep_dir`` whose name matches the
+    shell pattern ``match``, sorted. A sweep's folder (with ``cells/``) stands for its ``cells/`` folder."""
     root = Path(sweep_dir)
     if not root.is_dir():
         raise ConfigError("--sweep", str(sweep_dir), "not a folder")
-    cells = sorted(p for p in root.iterdir() if (p / RUN_FILES["config"]).is_file() and (p / RUN_FILES["summary"]).is_file())
-    if not cells:
+    if (root / "cells").is_dir() and not (root / RUN_FILES["config"]).is_file():
+        root = root / "cells"
+    runs = [p for p in root.iterdir() if (p / RUN_FILES["config"]).is_file() and (p / RUN_FILES["summary"]).is_file()]
+    if not runs:
         raise ConfigError("--sweep", str(sweep_dir), "holds no run directories (sub-folders with config.yaml and summary.json)")
+    cells = sorted(p for p in runs if fnmatch.fnmatchcase(p.name, match))
+    if not cells:
+        raise ConfigError("--match", match, f"matches none of the {len(runs)} run directories of {sweep_dir}")
     return cells
 
 

@@ -18,7 +18,8 @@ def _pixels(embedding: str) -> int:
 
 
 def accuracy_vs_embedding(summary: list[dict[str, Any]], path: Path) -> Path | None:
-    """Test accuracy (mean over seeds, bars = one standard deviation) against embedding pixels, one line per encoder.
+    """Test accuracy (mean over seeds, bars = one standard deviation) against embedding pixels, one line per encoder
+    (and, where the rows carry a ``paper_acc``, the paper's figures dashed in the same colour).
 
     ``summary``: the sweep's rows aggregated over seeds (:func:`optoenc.sweep.collect.aggregate`).
     """
@@ -36,6 +37,11 @@ def accuracy_vs_embedding(summary: list[dict[str, Any]], path: Path) -> Path | N
                          for r in agg if r["decoder"] == dec and r["encoder"] == enc)
             ax.errorbar([p[0] for p in pts], [p[1] for p in pts], yerr=[p[2] for p in pts], marker="o",
                         capsize=3, label=enc, color=colour[enc])
+            paper = sorted((_pixels(r["embedding"]), r["paper_acc"]) for r in agg
+                           if r["decoder"] == dec and r["encoder"] == enc and r.get("paper_acc") is not None)
+            if paper:  # the paper's figures where the rows carry them: dashed, same colour
+                ax.plot([p[0] for p in paper], [p[1] for p in paper], ls="--", marker="x", lw=1, color=colour[enc],
+                        alpha=0.7, label=f"{enc} (paper)")
         ticks = sorted({(_pixels(r["embedding"]), r["embedding"]) for r in agg})
         ax.set_xscale("log")
         ax.set_xticks([t[0] for t in ticks], [t[1] for t in ticks])

@@ -46,6 +46,7 @@ def test_reconstruct_digits_and_image(tmp_path, capsys):
     (["reconstruct", "--encoder", "lens", "--image", "/nonexistent.png", "--out", "x"], "cannot read"),
     (["privacy", "--encoder", "lens", "--attacks", "guess", "--out", "x"], "--attacks"),
     (["privacy", "--sweep", "/nonexistent"], "--sweep"),
+    (["privacy", "--encoder", "lens", "--match", "*fcnn*", "--out", "x"], "--match"),
 ])
 def test_errors_are_one_line(argv, needle, capsys):
     assert main(argv) == 2
@@ -61,6 +62,22 @@ def _fake_run(root, name, encoder, emb, acc, extra):
     atomic_write_text(d / "config.yaml", run.to_yaml())
     write_json(d / "summary.json", {"test_acc": acc})
     return d
+
+
+def test_sweep_cells_match_a_pattern(tmp_path):
+    """--match picks run directories by name; a sweep's folder stands for its cells/; no match is a named error."""
+    from optoenc.errors import ConfigError
+    from optoenc.privacy.report import sweep_cells
+
+    cells = tmp_path / "sweep" / "cells"
+    for name in ("encoder=lens,decoder=fcnn,seed=0", "encoder=lens,decoder=fcnn,seed=1", "encoder=lens,decoder=logistic,seed=0"):
+        write_json(cells / name / "summary.json", {"test_acc": 0.5})
+        atomic_write_text(cells / name / "config.yaml", "{}\n")
+    (cells / "unfinished").mkdir()
+    assert [p.name for p in sweep_cells(tmp_path / "sweep")] == sorted(p.name for p in cells.iterdir())[:3]
+    assert [p.name for p in sweep_cells(cells, "*decoder=fcnn,seed=0")] == ["encoder=lens,decoder=fcnn,seed=0"]
+    with pytest.raises(ConfigError, match="--match"):
+        sweep_cells(cells, "*decoder=unet*")
 
 
 @pytest.mark.slow

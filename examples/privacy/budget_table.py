@@ -1,0 +1,189 @@
+"""Tables and a figure from budget_study.py's CSVs: where each learned attacker levels off, and whether a 4x
+larger attacker re-identifies more.
+
+    python examples/privacy/budget_table.py DIR --out docs/results/privacy
+
+DIR holds the budget studies, one CSV per run (``<encoder>-<embedding>.csv``, any name), and the larger
+attackers' (``...-4x.csv``: budget_study.py with ``--hidden 1024 --channels 128``). Writes into OUT:
+
+* ``budget.csv``: every row of every study, with ``attacker`` = ``default`` or ``4x``;
+* ``budget.md``: per cell and attack, re-identification top-1 [%] with its Wilson 95 % interval over the grid of
+  pairs (rows) x maximum epochs (columns), and whether it has levelled off: the largest budget's rate lies
+  inside the interval of the next smaller pair count at the same epochs, and of the next smaller epoch budget at
+  the same pairs;
+* ``attacker_size.md``: the default attacker against the 4x larger one at the same pairs and epochs, the
+  difference in points;
+* ``budget.png``: re-identification against pairs, one line per maximum epochs, one panel per cell and attack.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import sys
+from pathlib import Path
+
+from optoenc.privacy.report import COLUMNS, read_table
+from optoenc.training.rundir import atomic_write_text
+
+#: The larger attackers' files end with this (before ``.csv``).
+LARGER = "-4x"
+
+
+def _n(v) -> str:
+    """A count as read back from CSV (a float) written as a whole number."""
+    return str(int(v)) if isinstance(v, float) and v == int(v) else str(v)
+
+
+def _acc(r: dict) -> str:
+    acc = r.get("test_acc")
+    return f"{100 * acc:.2f} %" if isinstance(acc, float) and acc == acc else "-"
+
+
+def _pct(r: dict) -> str:
+    return f"{100 * r['reid_top1']:.1f} [{100 * r['reid_ci_low']:.1f}, {100 * r['reid_ci_high']:.1f}]"
+
+
+def load(folder: Path) -> list[dict]:
+    """Every row of the folder's budget CSVs, tagged ``attacker`` = ``4x`` (files ending -4x.csv) or ``default``."""
+    rows = []
+    for path in sorted(folder.glob("*.csv")):
+        size = "4x" if path.stem.endswith(LARGER) else "default"
+        rows += [{**r, "attacker": size} for r in read_table(path)]
+    return rows
+
+
+def _cells(rows):
+    seen = []
+    for r in rows:
+        key = (r["encoder"], r["embedding"], r["attack"])
+        if key not in seen:
+            seen.append(key)
+    return seen
+
+
+def _inside(r: dict, ref: dict | None) -> bool:
+    return ref is None or ref["reid_ci_low"] <= r["reid_top1"] <= ref["reid_ci_high"]
+
+
+def levelled(grid: dict) -> bool:
+    """The largest budget's rate lies inside the intervals of its neighbours one step smaller in pairs and in
+    epochs (``grid``: ``(pairs, epochs) -> row``)."""
+    pairs, epochs = sorted({p for p, _ in grid}), sorted({e for _, e in grid})
+    top = grid[(pairs[-1], epochs[-1])]
+    less_pairs = grid.get((pairs[-2], epochs[-1])) if len(pairs) > 1 else None
+    less_epochs = grid.get((pairs[-1], epochs[-2])) if len(epochs) > 1 else None
+    return _inside(top, less_pairs) and _inside(top, less_epochs)
+
+
+def budget_markdown(rows: list[dict]) -> str:
+    out = []
+    default = [r for r in rows if r["attacker"] == "default"]
+    for enc, emb, attack in _cells(default):
+        grid = {(r["n_pairs"], r["max_epochs"]): r for r in default
+                if (r["encoder"], r["embedding"], r["attack"]) == (enc, emb, attack)}
+        pairs, epochs = sorted({p for p, _ in grid}), sorted({e for _, e in grid})
+        verdict = "levelled off" if levelled(grid) else "still rising"
+        out.append(f"**{enc} {emb}, {attack}** (test accuracy {_acc(grid[(pairs[-1], epochs[-1])])};"
+                   f" {verdict} at {_n(pairs[-1])} pairs, <= {_n(epochs[-1])} epochs)\n")
+        out.append("| pairs | " + " | ".join(f"<= {_n(e)} epochs" for e in epochs) + " |")
+        out.append("|---|" + "---|" * len(epochs))
+        for p in pairs:
+            cells = []
+            for e in epochs:
+                r = grid.get((p, e))
+                cells.append("-" if r is None else f"{_pct(r)} ({_n(r['epochs_run'])} run)")
+            out.append(f"| {_n(p)} | " + " | ".join(cells) + " |")
+        out.append("")
+    return "\n".join(out)
+
+
+def size_rows(rows: list[dict]) -> list[dict]:
+    """The default attacker beside the 4x larger one at the same cell, attack, pairs and epochs."""
+    big = {(r["encoder"], r["embedding"], r["attack"], r["n_pairs"], r["max_epochs"]): r for r in rows
+           if r["attacker"] == "4x"}
+    out = []
+    for r in rows:
+        key = (r["encoder"], r["embedding"], r["attack"], r["n_pairs"], r["max_epochs"])
+        if r["attacker"] != "default" or key not in big:
+            continue
+        b = big[key]
+        out.append({"encoder": key[0], "embedding": key[1], "attack": key[2], "n_pairs": key[3], "max_epochs": key[4],
+                    "size": r["attacker_size"], "reid": _pct(r), "size_4x": b["attacker_size"], "reid_4x": _pct(b),
+                    "change_pts": f"{100 * (b['reid_top1'] - r['reid_top1']):+.1f}",
+                    "val_loss": f"{r['val_loss']:.4f}", "val_loss_4x": f"{b['val_loss']:.4f}"})
+    return out
+
+
+def size_markdown(rows: list[dict]) -> str:
+    cols = ("encoder", "embedding", "attack", "n_pairs", "max_epochs", "size", "reid", "size_4x", "reid_4x",
+            "change_pts", "val_loss", "val_loss_4x")
+    heads = ("encoder", "embedding", "attack", "pairs", "max epochs", "size", "re-id [%]", "4x size", "4x re-id [%]",
+             "change [pts]", "val loss", "4x val loss")
+    lines = ["| " + " | ".join(heads) + " |", "|" + "---|" * len(heads)]
+    lines += ["| " + " | ".join(_n(r[c]) for c in cols) + " |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+def figure(rows: list[dict], out: Path) -> Path | None:
+    from optoenc.training.pictures import new_figure, save_figure
+
+    default = [r for r in rows if r["attacker"] == "default"]
+    cells = _cells(default)
+    if not cells:
+        return None
+    cols = min(4, len(cells))
+    nrows = (len(cells) + cols - 1) // cols
+    plt, fig = new_figure((3.6 * cols, 2.8 * nrows))
+    for i, (enc, emb, attack) in enumerate(cells):
+        ax = fig.add_subplot(nrows, cols, i + 1)
+        mine = [r for r in default if (r["encoder"], r["embedding"], r["attack"]) == (enc, emb, attack)]
+        for e in sorted({r["max_epochs"] for r in mine}):
+            pts = sorted((r["n_pairs"], r) for r in mine if r["max_epochs"] == e)
+            x = [p for p, _ in pts]
+            y = [100 * r["reid_top1"] for _, r in pts]
+            lo = [100 * (r["reid_top1"] - r["reid_ci_low"]) for _, r in pts]
+            hi = [100 * (r["reid_ci_high"] - r["reid_top1"]) for _, r in pts]
+            ax.errorbar(x, y, yerr=[lo, hi], marker="o", ms=3, capsize=2, label=f"<= {e} epochs")
+        ax.set_xscale("log")
+        ax.set_title(f"{enc} {emb}, {attack}", fontsize=8)
+        ax.set_xlabel("training pairs", fontsize=7)
+        ax.set_ylabel("re-identification top-1 [%]", fontsize=7)
+        ax.tick_params(labelsize=7)
+        ax.legend(fontsize=6)
+    fig.tight_layout()
+    return save_figure(plt, fig, out)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("folder", type=Path, help="folder of budget_study.py CSVs")
+    ap.add_argument("--out", type=Path, required=True, help="folder to write budget.csv, budget.md, "
+                    "attacker_size.md and budget.png into")
+    args = ap.parse_args(argv)
+    rows = load(args.folder)
+    if not rows:
+        print(f"budget_table: {args.folder} holds no budget CSVs", file=sys.stderr)
+        return 2
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_csv(rows, args.out / "budget.csv")
+    atomic_write_text(args.out / "budget.md", budget_markdown(rows))
+    atomic_write_text(args.out / "attacker_size.md", size_markdown(size_rows(rows)))
+    figure(rows, args.out / "budget.png")
+    print(f"{len(rows)} rows -> {args.out}")
+    return 0
+
+
+def write_csv(rows: list[dict], path: Path) -> Path:
+    """The privacy table's columns plus ``attacker`` (default or 4x), in the rows' order."""
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=[*COLUMNS, "attacker"], extrasaction="ignore", lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: f"{v:.6g}" if isinstance(v, float) else v for k, v in r.items()})
+    return atomic_write_text(path, buf.getvalue())
+
+
+if __name__ == "__main__":
+    sys.exit(main())
