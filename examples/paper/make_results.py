@@ -81,9 +81,13 @@ def _csv(rows, columns) -> str:
     return buf.getvalue()
 
 
-def _fmt(v) -> str:
+def _fmt(v, key: str = "") -> str:
     if v is None:
         return "-"
+    if key == "p_two_sided":  # two significant digits: a p value spans orders of magnitude
+        return f"{v:.2g}"
+    if key == "welch_df":
+        return f"{v:.1f}"
     return f"{v:.2f}" if isinstance(v, float) else str(v)
 
 
@@ -92,7 +96,7 @@ def _md(rows, columns, title: str = "", note: str = "") -> str:
     if note:
         lines += [note, ""]
     lines += ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
-    lines += ["| " + " | ".join(_fmt(r.get(k)) for k in columns) + " |" for r in rows]
+    lines += ["| " + " | ".join(_fmt(r.get(k), k) for k in columns) + " |" for r in rows]
     return "\n".join(lines) + "\n"
 
 
@@ -288,7 +292,7 @@ def _learned_vs_fixed(name: str, agg) -> list[dict]:
                     "learned_acc": lr["test_acc"], "fixed_seeds": fx["seeds"], "fixed_acc": fx["test_acc"],
                     "difference": _diff(lr["test_acc"], fx["test_acc"]),
                     "welch_t": _round(w[0]) if w else None, "welch_df": _round(w[1], 1) if w else None,
-                    "p_two_sided": _round(w[2], 4) if w else None})
+                    "p_two_sided": float(f"{w[2]:.2g}") if w else None})
     return sorted(out, key=_order)
 
 
