@@ -278,3 +278,33 @@ def test_budget_table_says_where_an_attacker_levels_off(tmp_path):
     (paired,) = mod.size_rows(rows)
     assert (paired["size"], paired["size_4x"], paired["change_pts"]) == (256.0, 1024.0, "+2.0")
     assert "levelled off at 60000 pairs" in mod.budget_markdown(rows)
+
+
+def test_privacy_headline_has_one_line_per_cell_with_each_threat_models_strongest_attack():
+    """examples/privacy/make_privacy.py: a cell's line names each threat model's strongest attack (plaintext with
+    its pair count) and its re-identification interval; a threat model with no attack shows dashes."""
+    spec = importlib.util.spec_from_file_location("make_privacy", EXAMPLES / "privacy" / "make_privacy.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    row = {"encoder": "lens", "embedding": "6x8", "test_acc": 0.7348, "psnr": 14.04, "ssim": 0.512}
+    best = [{**row, "threat_model": "known_mask", "attack": "admm", "n_pairs": "", "reid_top1": 0.1,
+             "reid_ci_low": 0.083, "reid_ci_high": 0.12},
+            {**row, "threat_model": "plaintext", "attack": "plaintext", "n_pairs": 1000.0, "reid_top1": 0.2,
+             "reid_ci_low": 0.176, "reid_ci_high": 0.226}]
+    lines = mod.headline(best).splitlines()
+    assert len(lines) == 3
+    assert lines[2] == ("| lens | 6x8 | 73.5 % | admm | 10.0 [8.3, 12.0] | 14.0 | 0.51 | plaintext (N=1000) | "
+                        "20.0 [17.6, 22.6] | 14.0 | 0.51 | - | - | - | - |")
+
+
+def test_privacy_regeneration_script_parses_and_names_existing_pieces():
+    """examples/privacy/regenerate.sh: valid bash, and every example script and spec it runs exists."""
+    import re
+    import subprocess
+
+    script = EXAMPLES / "privacy" / "regenerate.sh"
+    assert subprocess.run(["bash", "-n", str(script)], capture_output=True).returncode == 0
+    used = set(re.findall(r'\$HERE/([\w.]+)', script.read_text()))
+    assert used >= {"defence.yaml", "budget_study.py", "make_privacy.py"}
+    for name in used:
+        assert (EXAMPLES / "privacy" / name).is_file(), name

@@ -19,12 +19,11 @@ attackers' (``...-4x.csv``: budget_study.py with ``--hidden 1024 --channels 128`
 from __future__ import annotations
 
 import argparse
-import csv
-import io
 import sys
 from pathlib import Path
 
-from optoenc.privacy.report import COLUMNS, read_table
+from optoenc.privacy.report import COLUMNS, read_table, write_table
+from optoenc.privacy.tables import acc_text, rate_text
 from optoenc.training.rundir import atomic_write_text
 
 #: The larger attackers' files end with this (before ``.csv``).
@@ -34,15 +33,6 @@ LARGER = "-4x"
 def _n(v) -> str:
     """A count as read back from CSV (a float) written as a whole number."""
     return str(int(v)) if isinstance(v, float) and v == int(v) else str(v)
-
-
-def _acc(r: dict) -> str:
-    acc = r.get("test_acc")
-    return f"{100 * acc:.2f} %" if isinstance(acc, float) and acc == acc else "-"
-
-
-def _pct(r: dict) -> str:
-    return f"{100 * r['reid_top1']:.1f} [{100 * r['reid_ci_low']:.1f}, {100 * r['reid_ci_high']:.1f}]"
 
 
 def load(folder: Path) -> list[dict]:
@@ -85,7 +75,7 @@ def budget_markdown(rows: list[dict]) -> str:
                 if (r["encoder"], r["embedding"], r["attack"]) == (enc, emb, attack)}
         pairs, epochs = sorted({p for p, _ in grid}), sorted({e for _, e in grid})
         verdict = "levelled off" if levelled(grid) else "still rising"
-        out.append(f"**{enc} {emb}, {attack}** (test accuracy {_acc(grid[(pairs[-1], epochs[-1])])};"
+        out.append(f"**{enc} {emb}, {attack}** (test accuracy {acc_text(grid[(pairs[-1], epochs[-1])])};"
                    f" {verdict} at {_n(pairs[-1])} pairs, <= {_n(epochs[-1])} epochs)\n")
         out.append("| pairs | " + " | ".join(f"<= {_n(e)} epochs" for e in epochs) + " |")
         out.append("|---|" + "---|" * len(epochs))
@@ -93,7 +83,7 @@ def budget_markdown(rows: list[dict]) -> str:
             cells = []
             for e in epochs:
                 r = grid.get((p, e))
-                cells.append("-" if r is None else f"{_pct(r)} ({_n(r['epochs_run'])} run)")
+                cells.append("-" if r is None else f"{rate_text(r)} ({_n(r['epochs_run'])} run)")
             out.append(f"| {_n(p)} | " + " | ".join(cells) + " |")
         out.append("")
     return "\n".join(out)
@@ -110,7 +100,7 @@ def size_rows(rows: list[dict]) -> list[dict]:
             continue
         b = big[key]
         out.append({"encoder": key[0], "embedding": key[1], "attack": key[2], "n_pairs": key[3], "max_epochs": key[4],
-                    "size": r["attacker_size"], "reid": _pct(r), "size_4x": b["attacker_size"], "reid_4x": _pct(b),
+                    "size": r["attacker_size"], "reid": rate_text(r), "size_4x": b["attacker_size"], "reid_4x": rate_text(b),
                     "change_pts": f"{100 * (b['reid_top1'] - r['reid_top1']):+.1f}",
                     "val_loss": f"{r['val_loss']:.4f}", "val_loss_4x": f"{b['val_loss']:.4f}"})
     return out
@@ -167,22 +157,12 @@ def main(argv=None) -> int:
         print(f"budget_table: {args.folder} holds no budget CSVs", file=sys.stderr)
         return 2
     args.out.mkdir(parents=True, exist_ok=True)
-    write_csv(rows, args.out / "budget.csv")
+    write_table(rows, args.out / "budget.csv", columns=(*COLUMNS, "attacker"))
     atomic_write_text(args.out / "budget.md", budget_markdown(rows))
     atomic_write_text(args.out / "attacker_size.md", size_markdown(size_rows(rows)))
     figure(rows, args.out / "budget.png")
     print(f"{len(rows)} rows -> {args.out}")
     return 0
-
-
-def write_csv(rows: list[dict], path: Path) -> Path:
-    """The privacy table's columns plus ``attacker`` (default or 4x), in the rows' order."""
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=[*COLUMNS, "attacker"], extrasaction="ignore", lineterminator="\n")
-    w.writeheader()
-    for r in rows:
-        w.writerow({k: f"{v:.6g}" if isinstance(v, float) else v for k, v in r.items()})
-    return atomic_write_text(path, buf.getvalue())
 
 
 if __name__ == "__main__":

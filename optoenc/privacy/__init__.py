@@ -10,6 +10,7 @@ attackers' networks, early stopping), :mod:`~optoenc.privacy.metrics`, :mod:`~op
 :mod:`~optoenc.privacy.reader` (the readability classifier),
 :mod:`~optoenc.privacy.evaluate` (all attacks on one encoder),
 :mod:`~optoenc.privacy.report` (tables, the strongest attack per threat model, sweeps, the privacy-utility plot),
+:mod:`~optoenc.privacy.tables` (the tables' text: CSV columns, rates with their intervals),
 :mod:`~optoenc.privacy.budget` (the learned attackers' pairs x epochs study). The
 commands `optoenc reconstruct` and `optoenc privacy` are :mod:`optoenc.cli.privacy`.
 """

@@ -20,12 +20,11 @@ Written by ``optoenc privacy --sweep DIR --defence`` to
 
 from __future__ import annotations
 
-import csv
-import io
 from pathlib import Path
 from typing import Any, Sequence
 
 from ..training.rundir import RUN_FILES, atomic_write_text
+from .tables import rate_text, write_csv
 
 __all__ = ["COLUMNS", "cell_settings", "defence_rows", "write_defence", "markdown"]
 
@@ -86,27 +85,11 @@ def defence_rows(cells: Sequence[tuple[str | Path, Sequence[dict]]]) -> list[dic
     return out
 
 
-def _fmt(v: Any) -> str:
-    return f"{v:.6g}" if isinstance(v, float) else str(v)
-
-
 def write_defence(rows: Sequence[dict], out_dir: str | Path) -> list[Path]:
     """``defence.csv`` (all :data:`COLUMNS`) and ``defence.md`` under ``out_dir``."""
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=list(COLUMNS), extrasaction="ignore", lineterminator="\n")
-    w.writeheader()
-    for r in rows:
-        w.writerow({k: _fmt(r.get(k, "")) for k in COLUMNS})
     out_dir = Path(out_dir)
-    return [atomic_write_text(out_dir / "defence.csv", buf.getvalue()),
+    return [write_csv(rows, out_dir / "defence.csv", COLUMNS),
             atomic_write_text(out_dir / "defence.md", markdown(rows))]
-
-
-def _reid(r: dict) -> str:
-    """Re-identification in percent with its Wilson 95 % interval (``+-`` its standard error in a table without)."""
-    if r.get("reid_ci_low") not in ("", None):
-        return f"{_pct(r['reid_top1'])} [{_pct(r['reid_ci_low'])}, {_pct(r['reid_ci_high'])}]"
-    return f"{_pct(r['reid_top1'])} +- {_pct(r['reid_top1_se'])}"
 
 
 def _pct(v: Any, signed: bool = False) -> str:
@@ -124,7 +107,7 @@ def markdown(rows: Sequence[dict]) -> str:
         if r["attack"] == "mean_scene":
             continue
         att = r["attack"] + (f" (N={int(float(r['n_pairs']))})" if r.get("n_pairs") not in ("", None) else "")
-        reid = _reid(r)
+        reid = rate_text(r)
         lines.append(
             f"| {r['embedding']} | {r['patterns']} | {r['adversary_weight']:g} | {r.get('seed', 0)} | {_pct(r['test_acc'])} | {att} "
             f"| {float(r['psnr']):.1f} | {float(r['ssim']):.2f} | {reid} "

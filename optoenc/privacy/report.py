@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import csv
 import fnmatch
-import io
 import json
 import math
 from pathlib import Path
@@ -23,6 +22,7 @@ from typing import Any, Callable, Sequence
 
 from ..errors import ConfigError
 from .settings import THREAT_MODEL, THREAT_MODELS
+from .tables import acc_text, given, rate_text, write_csv
 from ..training.rundir import RUN_FILES, atomic_write_text
 
 __all__ = [
@@ -98,20 +98,11 @@ def sweep_cells(sweep_dir: str | Path, match: str = "*") -> list[Path]:
     return cells
 
 
-def _fmt(v: Any) -> str:
-    if isinstance(v, float):
-        return "nan" if math.isnan(v) else f"{v:.6g}"
-    return str(v)
-
-
-def write_table(rows: Sequence[dict], csv_path: str | Path, md_path: str | Path | None = None) -> Path:
-    """Write ``rows`` as CSV (all :data:`COLUMNS`) and optionally as a markdown table."""
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=list(COLUMNS), extrasaction="ignore", lineterminator="\n")
-    w.writeheader()
-    for r in rows:
-        w.writerow({k: _fmt(r.get(k, "")) for k in COLUMNS})
-    path = atomic_write_text(csv_path, buf.getvalue())
+def write_table(rows: Sequence[dict], csv_path: str | Path, md_path: str | Path | None = None,
+                columns: Sequence[str] = COLUMNS) -> Path:
+    """Write ``rows`` as CSV (``columns``: all :data:`COLUMNS` unless a study adds its own) and optionally as a
+    markdown table."""
+    path = write_csv(rows, csv_path, columns)
     if md_path is not None:
         atomic_write_text(md_path, _document(rows))
     return path
@@ -132,35 +123,18 @@ def read_table(path: str | Path) -> list[dict[str, Any]]:
     return out
 
 
-def _given(v: Any) -> bool:
-    return v not in ("", None) and v == v
-
-
 def budget_text(r: dict) -> str:
     """The attacker's budget in words: ``N=1000`` (plaintext), ``54000+6000 pairs, 12;14;11/50 ep, 3 seeds``
     (learned: training + validation pairs, epochs run per seed / maximum, seeds), ``-`` for the others."""
-    if not _given(r.get("n_pairs")):
+    if not given(r.get("n_pairs")):
         return "-"
     n = int(float(r["n_pairs"]))
-    if not _given(r.get("max_epochs")):
+    if not given(r.get("max_epochs")):
         return f"N={n}"
     val = int(float(r.get("val_pairs") or 0))
     runs = str(r.get("epochs_run", "")).removesuffix(".0")
     seeds = int(float(r.get("attack_seeds") or 1))
     return f"{n - val}+{val} pairs, {runs}/{int(float(r['max_epochs']))} ep, {seeds} seed{'s' if seeds > 1 else ''}"
-
-
-def _rate(r: dict, key: str, short: str) -> str:
-    """``51.0 [47.9, 54.1]`` (percent, Wilson 95 % interval), or ``51.0 +- 1.6`` for a table without intervals."""
-    m = 100 * float(r[key])
-    if _given(r.get(f"{short}_ci_low")):
-        return f"{m:.1f} [{100 * float(r[f'{short}_ci_low']):.1f}, {100 * float(r[f'{short}_ci_high']):.1f}]"
-    return f"{m:.1f} +- {100 * float(r[f'{key}_se']):.1f}"
-
-
-def _acc(r: dict) -> str:
-    acc = r.get("test_acc", float("nan"))
-    return "-" if not _given(acc) else f"{100 * float(acc):.1f} %"
 
 
 def _threat(r: dict) -> str:
@@ -175,9 +149,9 @@ def markdown(rows: Sequence[dict]) -> str:
     lines = [head, "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(
-            f"| {r['encoder']} | {r['embedding']} | {_acc(r)} | {_threat(r)} | {r['attack']} | {budget_text(r)} "
+            f"| {r['encoder']} | {r['embedding']} | {acc_text(r)} | {_threat(r)} | {r['attack']} | {budget_text(r)} "
             f"| {float(r['psnr']):.1f} +- {float(r['psnr_std']):.1f} | {float(r['ssim']):.2f} +- {float(r['ssim_std']):.2f} "
-            f"| {_rate(r, 'readability', 'readability')} | {_rate(r, 'reid_top1', 'reid')} |"
+            f"| {rate_text(r, 'readability', 'readability')} | {rate_text(r, 'reid_top1', 'reid')} |"
         )
     return "\n".join(lines) + "\n"
 
@@ -199,7 +173,7 @@ def best_per_threat_model(rows: Sequence[dict]) -> list[dict[str, Any]]:
         cell = (r["encoder"], r["embedding"], r.get("run", ""))
         if cell not in cells:
             cells.append(cell)
-        score = tuple(float(r[k]) if _given(r.get(k)) else -math.inf for k in ("reid_top1", "readability", "psnr"))
+        score = tuple(float(r[k]) if given(r.get(k)) else -math.inf for k in ("reid_top1", "readability", "psnr"))
         key = (*cell, threat)
         if key not in best or score > best[key][0]:
             best[key] = (score, {**r, "threat_model": threat})
@@ -212,8 +186,8 @@ def best_markdown(rows: Sequence[dict]) -> str:
              "| readability [%] | PSNR [dB] | SSIM |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in best_per_threat_model(rows):
         lines.append(
-            f"| {r['encoder']} | {r['embedding']} | {_acc(r)} | {r['threat_model']} | {r['attack']} | {budget_text(r)} "
-            f"| {_rate(r, 'reid_top1', 'reid')} | {_rate(r, 'readability', 'readability')} | {float(r['psnr']):.1f} "
+            f"| {r['encoder']} | {r['embedding']} | {acc_text(r)} | {r['threat_model']} | {r['attack']} | {budget_text(r)} "
+            f"| {rate_text(r, 'reid_top1', 'reid')} | {rate_text(r, 'readability', 'readability')} | {float(r['psnr']):.1f} "
             f"| {float(r['ssim']):.2f} |"
         )
     return "\n".join(lines) + "\n"
@@ -265,12 +239,16 @@ def measure_run(run_dir: Path, evaluate_kw: dict, overrides: Sequence[str] = (),
 
 def write_sweep(rows: Sequence[dict], out_dir: Path, chance: float) -> list[Path]:
     """The combined table (``privacy.csv``, ``privacy.md``), the strongest attack per cell and threat model
-    (``privacy_best.csv``) and the privacy-utility plots (learned and ADMM attackers) of a sweep."""
-    from .pictures import save_frontier
+    (``privacy_best.csv``) and the privacy-utility plots of a sweep: one panel per threat model with its
+    strongest attack (``privacy_utility.png``), and the learned and ADMM attackers' own."""
+    from .pictures import save_frontier, save_threat_frontiers
 
     out_dir = Path(out_dir)
+    best = best_per_threat_model(rows)
     paths = [write_table(rows, out_dir / "privacy.csv", out_dir / "privacy.md"), out_dir / "privacy.md",
-             write_table(best_per_threat_model(rows), out_dir / "privacy_best.csv")]
+             write_table(best, out_dir / "privacy_best.csv")]
+    if best:
+        paths.append(save_threat_frontiers(out_dir / "privacy_utility.png", best, THREAT_MODELS, chance))
     for attack in ("learned", "admm"):
         if any(r["attack"] == attack for r in rows):
             paths.append(save_frontier(out_dir / f"privacy_utility_{attack}.png", rows, attack, chance))

@@ -101,6 +101,7 @@ def test_privacy_sweep_table_and_plot(tmp_path, capsys):
     assert admm["12x16"]["psnr"] > admm["3x4"]["psnr"]
     assert admm["12x16"]["reid_top1"] > floor["12x16"]["reid_top1"] + 0.3
     assert (sweep / "privacy" / "privacy_utility_learned.png").stat().st_size > 0
+    assert (sweep / "privacy" / "privacy_utility.png").stat().st_size > 0
     assert (sweep / "lens-3x4" / "privacy" / "recon_admm.png").is_file()
     md = (sweep / "privacy" / "privacy.md").read_text()
     assert "| lens | 12x16 | 90.0 % | known_mask | admm | - |" in md

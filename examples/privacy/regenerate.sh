@@ -1,0 +1,54 @@
+#!/usr/bin/env bash
+# Regenerate docs/results/privacy.csv and docs/results/privacy/ (docs/privacy.md): the attacks on Table 1's
+# cameras, the attackers' budget study and the 4x larger attacker, the defences against the same attackers.
+#
+#   examples/privacy/regenerate.sh TABLE1_SWEEP WORK_DIR
+#
+# TABLE1_SWEEP: the folder `optoenc sweep examples/paper/table1.yaml --out TABLE1_SWEEP` trained (its cells keep
+# their checkpoints; the learned LCD's masks are read from them). WORK_DIR: where the defence runs, the attack
+# tables and the budget CSVs go (resumable: a cell with privacy/privacy.csv, a budget CSV that exists, a
+# finished defence run are kept). Two jobs run at a time, one thread each (a 2-core machine).
+set -euo pipefail
+T1="$1/cells"
+W="$2"
+HERE="$(cd "$(dirname "$0")" && pwd)"
+export OMP_NUM_THREADS=1 MKL_NUM_THREADS=1
+mkdir -p "$W/budget"
+
+# 1. The defences' runs: variable patterns and privacy-aware training, 5 epochs each (examples/privacy/defence.yaml).
+optoenc sweep "$HERE/defence.yaml" --out "$W/defence" --workers 2 --threads 1
+
+# 2. Every attack on Table 1's FCNN seed-0 cameras (20 cells), 1,000 probes; two sizes at a time.
+A="--attacks admm,pinv,plaintext,learned,learned_conv --count 1000"
+run_sizes() {
+    optoenc privacy --sweep "$T1" --match "*embedding=$1,decoder=fcnn,seed=0" --out "$W/privacy/$1" $A > "$W/privacy-$1.log" 2>&1 &
+    optoenc privacy --sweep "$T1" --match "*embedding=$2,decoder=fcnn,seed=0" --out "$W/privacy/$2" $A > "$W/privacy-$2.log" 2>&1
+    wait
+}
+run_sizes 24x32 6x8
+run_sizes 12x16 3x4
+optoenc privacy --sweep "$T1" --match '*decoder=fcnn,seed=0' --out "$W/privacy/all" $A > "$W/privacy-all.log" 2>&1
+
+# 3. The budget study (pairs x maximum epochs) and the 4x larger attacker, lens, fixed and learned LCD at 6x8, 24x32.
+budget() {  # $1 file suffix, then budget_study.py options
+    local suffix="$1"; shift
+    for size in 6x8 24x32; do
+        for enc in lens fixed_slm learned_slm; do
+            local f="$W/budget/$enc-$size$suffix.csv"
+            [ -f "$f" ] && continue
+            python "$HERE/budget_study.py" --run "$T1/encoder=$enc,embedding=$size,decoder=fcnn,seed=0" --out "$f" \
+                --attacks learned,learned_conv --seeds 1 --probes 1000 "$@" > "${f%.csv}.log" 2>&1 &
+            while [ "$(jobs -r | wc -l)" -ge 2 ]; do sleep 10; done
+        done
+    done
+    wait
+}
+budget "" --pairs 1000,10000,60000 --epochs 5,15,50
+budget "-4x" --pairs 60000 --epochs 50 --hidden 1024 --channels 128
+
+# 4. The defences against the same attackers.
+optoenc privacy --sweep "$W/defence" --defence --count 1000 \
+    --attacks admm,admm_search,plaintext,learned,learned_one,learned_conv > "$W/privacy-defence.log" 2>&1
+
+# 5. Into docs/results.
+python "$HERE/make_privacy.py" --table "$W/privacy/all" --cells "$T1" --budget "$W/budget" --defence "$W/defence/privacy"
