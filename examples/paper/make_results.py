@@ -333,7 +333,8 @@ def _cost(name: str, planned, rows) -> dict:
     for p in planned:
         if p.state == "finished":
             hw = json.loads((p.path / "summary.json").read_text()).get("hardware") or {}
-            key = f"{hw.get('name', '?')} ({hw.get('threads', '?')} threads)"
+            n = hw.get("threads", "?")
+            key = f"{hw.get('name', '?')} ({n} thread{'' if n == 1 else 's'})"
             machines[key] = machines.get(key, 0) + 1
     return {"table": name, "cells": len(rows), "finished": sum(r["state"] == "finished" for r in rows),
             "cell_hours": round(hours, 2), "machines": "; ".join(f"{k}: {v}" for k, v in sorted(machines.items()))}
