@@ -64,7 +64,7 @@ def _is_spec(text: str) -> bool:
 
 def _every_spec(tmp_path, sweep, ConfigError, pytest):
     specs = sorted(p for p in EXAMPLES.rglob("*.yaml") if _is_spec(p.read_text()))
-    assert len(specs) >= 10 and EXAMPLES / "privacy" / "defence.yaml" in specs
+    assert len(specs) >= 23 and EXAMPLES / "privacy" / "defence.yaml" in specs
     for path in specs:
         spec = sweep.load_spec(path)
         planned = sweep.plan(spec, tmp_path / spec.name)  # composes and validates every cell's configuration
@@ -85,9 +85,9 @@ def _bad_spec(tmp_path):
 
 
 def test_seed_stats_reads_the_committed_cells():
-    # docs/results/table3_seeds holds Table 3's 24x32 SLM cells, three seeds each (five under perspective).
+    # docs/results/explored/table3_seeds holds Table 3's 24x32 SLM cells, three seeds each (five under perspective).
     root = EXAMPLES.parent
-    out = subprocess.run([sys.executable, str(EXAMPLES / "paper" / "seed_stats.py")], cwd=root,
+    out = subprocess.run([sys.executable, str(EXAMPLES / "paper" / "explored" / "seed_stats.py")], cwd=root,
                          capture_output=True, text=True, check=True).stdout
     # Every transform has >= 3 seeds per SLM at 24x32 (drawn once; the redrawn cells are left out).
     for t in ("shift", "rescale", "rotate", "perspective"):
@@ -168,14 +168,14 @@ def test_conditioning_compares_three_normalisations_of_one_fixed_embedding(tmp_p
 
 
 def test_whiten_table_puts_the_committed_whitening_cells_beside_the_tables(capsys):
-    """examples/paper/whiten_table.py reads docs/results: each printed figure is the CSV's own (the learned SLM's
+    """examples/paper/explored/whiten_table.py reads docs/results/explored/tables: each printed figure is the CSV's own (the learned SLM's
     6x8 logistic cell: Table 1's 88.87, whitened from whiten.csv), and --table1 has a row per whitened cell."""
     import csv
 
-    spec = importlib.util.spec_from_file_location("whiten_table", EXAMPLES / "paper" / "whiten_table.py")
+    spec = importlib.util.spec_from_file_location("whiten_table", EXAMPLES / "paper" / "explored" / "whiten_table.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
-    results = EXAMPLES.parent / "docs" / "results"
+    results = EXAMPLES.parent / "docs" / "results" / "explored" / "tables"
     wh = list(csv.DictReader((results / "whiten.csv").read_text().splitlines()))
     mod.main([])
     out = capsys.readouterr().out.splitlines()
@@ -190,7 +190,7 @@ def test_whiten_table_puts_the_committed_whitening_cells_beside_the_tables(capsy
 
 
 def test_select_variant_takes_the_protocol_run_with_the_highest_validation_accuracy(capsys, tmp_path):
-    """examples/paper/select_variant.py reads the committed cells' config.yaml and summary.json: with the committed
+    """examples/paper/explored/select_variant.py reads the committed cells' config.yaml and summary.json: with the committed
     cells the 12x16 FCNN cell selects the whitened run (validation 97.98 against the table's 97.22); a run that
     breaks the protocol (200 epochs) is no candidate however high its validation accuracy, nor is a rerun of the
     table's own knobs; with the whitened cell's validation accuracy lowered below the table's the same cell
@@ -198,7 +198,7 @@ def test_select_variant_takes_the_protocol_run_with_the_highest_validation_accur
     import json
     import shutil
 
-    spec = importlib.util.spec_from_file_location("select_variant", EXAMPLES / "paper" / "select_variant.py")
+    spec = importlib.util.spec_from_file_location("select_variant", EXAMPLES / "paper" / "explored" / "select_variant.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     results = EXAMPLES.parent / "docs" / "results"
@@ -211,13 +211,13 @@ def test_select_variant_takes_the_protocol_run_with_the_highest_validation_accur
     assert rows[("24x32", "fcnn", "original")]["variant"] == "table"  # the bfloat16 rerun (98.08 %) is no variant
 
     copy = tmp_path / "results"
-    copy.mkdir()
-    for name in ("table1.csv", "table3.csv"):
-        shutil.copy(results / name, copy / name)
-    for sweep in ("table1", "table3", "whiten"):
-        shutil.copytree(results / "sweep_cells" / sweep, copy / "sweep_cells" / sweep)
+    (copy / "explored" / "tables").mkdir(parents=True)
+    for name in ("table1_mixed.csv", "table3_mixed.csv"):
+        shutil.copy(results / "explored" / "tables" / name, copy / "explored" / "tables" / name)
+    for sweep in ("table1_mixed", "table3_mixed", "whiten"):
+        shutil.copytree(results / "explored" / sweep, copy / "explored" / sweep)
     before = mod.select(copy)
-    summary_path = copy / "sweep_cells" / "whiten" / "embedding=12x16,decoder=fcnn,verify_preset=reference" / "summary.json"
+    summary_path = copy / "explored" / "whiten" / "embedding=12x16,decoder=fcnn,verify_preset=reference" / "summary.json"
     summary = json.loads(summary_path.read_text())
     summary["val_acc"] = 0.5
     summary_path.write_text(json.dumps(summary))
@@ -232,12 +232,12 @@ def test_select_variant_takes_the_protocol_run_with_the_highest_validation_accur
 
 
 def test_ceiling_plot_reads_the_budget_curve_off_the_committed_cells(capsys, tmp_path):
-    """examples/paper/ceiling_plot.py: the validation-selected test accuracy at each budget is the first epoch with
+    """examples/paper/explored/ceiling_plot.py: the validation-selected test accuracy at each budget is the first epoch with
     the best validation accuracy among the first N (the summaries' own choice: at 200 epochs it equals each seed's
     summary.json test_acc), and the picture is written whole (no temporary file left)."""
     import json
 
-    spec = importlib.util.spec_from_file_location("ceiling_plot", EXAMPLES / "paper" / "ceiling_plot.py")
+    spec = importlib.util.spec_from_file_location("ceiling_plot", EXAMPLES / "paper" / "explored" / "ceiling_plot.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     rows = [(0, 50.0, 1.0), (1, 60.0, 2.0), (2, 60.0, 3.0), (3, 55.0, 4.0)]
