@@ -266,7 +266,7 @@ def _budget_row(pairs, epochs, reid, size=256, attacker="default"):
 
 def test_budget_table_says_where_an_attacker_levels_off(tmp_path):
     """examples/privacy/budget_table.py: a grid whose largest budget is inside its neighbours' Wilson intervals
-    has levelled off, one still rising by 10 points has not; the 4x attacker is paired with the default one at
+    has levelled off, one still rising by 10 points has not; the larger attacker is paired with the default one at
     the same grid point."""
     spec = importlib.util.spec_from_file_location("budget_table", EXAMPLES / "privacy" / "budget_table.py")
     mod = importlib.util.module_from_spec(spec)
@@ -274,9 +274,9 @@ def test_budget_table_says_where_an_attacker_levels_off(tmp_path):
     flat = {(p, e): _budget_row(p, e, 0.30 + (0.01 if (p, e) == (60000, 50) else 0)) for p in (1000, 60000) for e in (5, 50)}
     rising = {**flat, (60000, 50): _budget_row(60000, 50, 0.40)}
     assert mod.levelled(flat) and not mod.levelled(rising)
-    rows = [*flat.values(), _budget_row(60000, 50, 0.33, size=1024, attacker="4x")]
+    rows = [*flat.values(), _budget_row(60000, 50, 0.33, size=1024, attacker="larger")]
     (paired,) = mod.size_rows(rows)
-    assert (paired["size"], paired["size_4x"], paired["change_pts"]) == (256.0, 1024.0, "+2.0")
+    assert (paired["size"], paired["size_larger"], paired["change_pts"]) == (256.0, 1024.0, "+2.0")
     assert "levelled off at 60000 pairs" in mod.budget_markdown(rows)
 
 

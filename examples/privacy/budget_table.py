@@ -1,17 +1,18 @@
-"""Tables and a figure from budget_study.py's CSVs: where each learned attacker levels off, and whether a 4x
+"""Tables and a figure from budget_study.py's CSVs: where each learned attacker levels off, and whether a
 larger attacker re-identifies more.
 
     python examples/privacy/budget_table.py DIR --out docs/results/privacy
 
 DIR holds the budget studies, one CSV per run (``<encoder>-<embedding>.csv``, any name), and the larger
-attackers' (``...-4x.csv``: budget_study.py with ``--hidden 1024 --channels 128``). Writes into OUT:
+attackers' (``...-larger.csv``: budget_study.py with ``--hidden 1024 --channels 64``: the MLP four times wider,
+the convolutional decoder twice as wide, four times the weights in its convolutions). Writes into OUT:
 
-* ``budget.csv``: every row of every study, with ``attacker`` = ``default`` or ``4x``;
+* ``budget.csv``: every row of every study, with ``attacker`` = ``default`` or ``larger``;
 * ``budget.md``: per cell and attack, re-identification top-1 [%] with its Wilson 95 % interval over the grid of
   pairs (rows) x maximum epochs (columns), and whether it has levelled off: the largest budget's rate lies
   inside the interval of the next smaller pair count at the same epochs, and of the next smaller epoch budget at
   the same pairs;
-* ``attacker_size.md``: the default attacker against the 4x larger one at the same pairs and epochs, the
+* ``attacker_size.md``: the default attacker against the larger one at the same pairs and epochs, the
   difference in points;
 * ``budget.png``: re-identification against pairs, one line per maximum epochs, one panel per cell and attack.
 """
@@ -27,7 +28,7 @@ from optoenc.privacy.tables import acc_text, rate_text
 from optoenc.training.rundir import atomic_write_text
 
 #: The larger attackers' files end with this (before ``.csv``).
-LARGER = "-4x"
+LARGER = "-larger"
 
 
 def _n(v) -> str:
@@ -36,10 +37,10 @@ def _n(v) -> str:
 
 
 def load(folder: Path) -> list[dict]:
-    """Every row of the folder's budget CSVs, tagged ``attacker`` = ``4x`` (files ending -4x.csv) or ``default``."""
+    """Every row of the folder's budget CSVs, tagged ``attacker`` = ``larger`` (files ending -larger.csv) or ``default``."""
     rows = []
     for path in sorted(folder.glob("*.csv")):
-        size = "4x" if path.stem.endswith(LARGER) else "default"
+        size = "larger" if path.stem.endswith(LARGER) else "default"
         rows += [{**r, "attacker": size} for r in read_table(path)]
     return rows
 
@@ -90,9 +91,9 @@ def budget_markdown(rows: list[dict]) -> str:
 
 
 def size_rows(rows: list[dict]) -> list[dict]:
-    """The default attacker beside the 4x larger one at the same cell, attack, pairs and epochs."""
+    """The default attacker beside the larger one at the same cell, attack, pairs and epochs."""
     big = {(r["encoder"], r["embedding"], r["attack"], r["n_pairs"], r["max_epochs"]): r for r in rows
-           if r["attacker"] == "4x"}
+           if r["attacker"] == "larger"}
     out = []
     for r in rows:
         key = (r["encoder"], r["embedding"], r["attack"], r["n_pairs"], r["max_epochs"])
@@ -100,17 +101,17 @@ def size_rows(rows: list[dict]) -> list[dict]:
             continue
         b = big[key]
         out.append({"encoder": key[0], "embedding": key[1], "attack": key[2], "n_pairs": key[3], "max_epochs": key[4],
-                    "size": r["attacker_size"], "reid": rate_text(r), "size_4x": b["attacker_size"], "reid_4x": rate_text(b),
+                    "size": r["attacker_size"], "reid": rate_text(r), "size_larger": b["attacker_size"], "reid_larger": rate_text(b),
                     "change_pts": f"{100 * (b['reid_top1'] - r['reid_top1']):+.1f}",
-                    "val_loss": f"{r['val_loss']:.4f}", "val_loss_4x": f"{b['val_loss']:.4f}"})
+                    "val_loss": f"{r['val_loss']:.4f}", "val_loss_larger": f"{b['val_loss']:.4f}"})
     return out
 
 
 def size_markdown(rows: list[dict]) -> str:
-    cols = ("encoder", "embedding", "attack", "n_pairs", "max_epochs", "size", "reid", "size_4x", "reid_4x",
-            "change_pts", "val_loss", "val_loss_4x")
-    heads = ("encoder", "embedding", "attack", "pairs", "max epochs", "size", "re-id [%]", "4x size", "4x re-id [%]",
-             "change [pts]", "val loss", "4x val loss")
+    cols = ("encoder", "embedding", "attack", "n_pairs", "max_epochs", "size", "reid", "size_larger", "reid_larger",
+            "change_pts", "val_loss", "val_loss_larger")
+    heads = ("encoder", "embedding", "attack", "pairs", "max epochs", "size", "re-id [%]", "larger size", "larger re-id [%]",
+             "change [pts]", "val loss", "larger val loss")
     lines = ["| " + " | ".join(heads) + " |", "|" + "---|" * len(heads)]
     lines += ["| " + " | ".join(_n(r[c]) for c in cols) + " |" for r in rows]
     return "\n".join(lines) + "\n"

@@ -26,7 +26,7 @@ run_sizes 24x32 6x8
 run_sizes 12x16 3x4
 optoenc privacy --sweep "$T1" --match '*decoder=fcnn,seed=0' --out "$W/privacy/all" $A > "$W/privacy-all.log" 2>&1
 
-# 2. The budget study (pairs x maximum epochs) and the 4x larger attacker, lens, fixed and learned LCD at 6x8, 24x32.
+# 2. The budget study (pairs x maximum epochs) and a larger attacker, lens, fixed and learned LCD at 6x8, 24x32.
 budget() {  # $1 file suffix, then budget_study.py options
     local suffix="$1"; shift
     for size in 6x8 24x32; do
@@ -41,7 +41,7 @@ budget() {  # $1 file suffix, then budget_study.py options
     wait
 }
 budget "" --pairs 1000,10000,60000 --epochs 5,15,50
-budget "-4x" --pairs 60000 --epochs 50 --hidden 1024 --channels 128
+budget "-larger" --pairs 60000 --epochs 50 --hidden 1024 --channels 64
 
 # 3. The defences' runs: variable patterns and privacy-aware training, 5 epochs each (examples/privacy/defence.yaml).
 optoenc sweep "$HERE/defence.yaml" --out "$W/defence" --workers 2 --threads 1
