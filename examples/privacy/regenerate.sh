@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Regenerate docs/results/privacy.csv and docs/results/privacy/ (docs/privacy.md): the attacks on Table 1's
-# cameras, the attackers' budget study and a larger attacker, the defences against the same attackers.
+# cameras, the attackers' budget study and the 4x larger attacker, the defences against the same attackers.
 #
 #   examples/privacy/regenerate.sh TABLE1_SWEEP WORK_DIR
 #
