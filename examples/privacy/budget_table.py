@@ -4,8 +4,8 @@ larger attacker re-identifies more.
     python examples/privacy/budget_table.py DIR --out docs/results/privacy
 
 DIR holds the budget studies, one CSV per run (``<encoder>-<embedding>.csv``, any name), and the larger
-attackers' (``...-larger.csv``: budget_study.py with ``--hidden 1024 --channels 64``: the MLP four times wider,
-the convolutional decoder twice as wide, four times the weights in its convolutions). Writes into OUT:
+attackers' (``...-larger.csv``: budget_study.py with ``--hidden 1024 --channels 128``: both four times wider,
+6.8x and 5.4x the weights at 6x8). Writes into OUT:
 
 * ``budget.csv``: every row of every study, with ``attacker`` = ``default`` or ``larger``;
 * ``budget.md``: per cell and attack, re-identification top-1 [%] with its Wilson 95 % interval over the grid of

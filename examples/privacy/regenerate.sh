@@ -41,7 +41,7 @@ budget() {  # $1 file suffix, then budget_study.py options
     wait
 }
 budget "" --pairs 1000,10000,60000 --epochs 5,15,50
-budget "-larger" --pairs 60000 --epochs 50 --hidden 1024 --channels 64
+budget "-larger" --pairs 60000 --epochs 50 --hidden 1024 --channels 128
 
 # 3. The defences' runs: variable patterns and privacy-aware training, 5 epochs each (examples/privacy/defence.yaml).
 optoenc sweep "$HERE/defence.yaml" --out "$W/defence" --workers 2 --threads 1
