@@ -56,6 +56,8 @@ def add_parsers(sub) -> None:
                    f"{','.join(str(v) for v in PrivacyConfig().plaintext_n)})")
     p.add_argument("--learned-epochs", type=int, help=f"learned attacker's epochs (default {LearnedConfig().epochs})")
     p.add_argument("--learned-pairs", type=int, help=f"learned attacker's training pairs (default {LearnedConfig().pairs})")
+    p.add_argument("--attack-seeds", type=int, help="learned attackers: each trained with this many seeds (--seed, "
+                   f"--seed + 1, ...), a row the mean over them (default {PrivacyConfig().attack_seeds})")
     p.add_argument("--seed", type=int, help="seed of the sensor noise, the patterns a multi-pattern camera shows, the "
                    "re-identification galleries, the readability classifier and the attackers' training "
                    f"(default {PrivacyConfig().seed})")
@@ -214,7 +216,7 @@ def _counts(text: str, key: str) -> tuple[int, ...]:
 
 
 def _evaluate_kw(args) -> dict:
-    pc = PrivacyConfig(**_given(count=args.count, gallery=args.gallery, seed=args.seed,
+    pc = PrivacyConfig(**_given(count=args.count, gallery=args.gallery, seed=args.seed, attack_seeds=args.attack_seeds,
                                 plaintext_n=_counts(args.plaintext_n, "--plaintext-n") if args.plaintext_n else None))
     lc = LearnedConfig(**_given(epochs=args.learned_epochs, pairs=args.learned_pairs))
     tc = TikhonovConfig(**_given(rcond=args.rcond))

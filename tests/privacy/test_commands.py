@@ -39,6 +39,17 @@ def test_reconstruct_digits_and_image(tmp_path, capsys):
     assert code == 0 and np.load(tmp_path / "img" / "reconstructions_admm.npy").shape == (1, 1, 20, 16)
 
 
+def test_attack_seeds_reach_the_privacy_settings():
+    """--attack-seeds sets how many seeds train each learned attacker; without it the settings' default holds."""
+    from optoenc.cli.main import build_parser
+    from optoenc.cli.privacy import _evaluate_kw
+    from optoenc.privacy.settings import PrivacyConfig
+
+    parse = lambda *a: build_parser().parse_known_args(["privacy", "--encoder", "lens", "--out", "x", *a])[0]
+    assert _evaluate_kw(parse("--attack-seeds", "1"))["config"].attack_seeds == 1
+    assert _evaluate_kw(parse())["config"].attack_seeds == PrivacyConfig().attack_seeds == 3
+
+
 @pytest.mark.parametrize("argv,needle", [
     (["reconstruct", "--encoder", "lens", "--method", "magic", "--out", "x"], "--method"),
     (["reconstruct", "--encoder", "lens"], "--out"),
@@ -47,6 +58,7 @@ def test_reconstruct_digits_and_image(tmp_path, capsys):
     (["privacy", "--encoder", "lens", "--attacks", "guess", "--out", "x"], "--attacks"),
     (["privacy", "--sweep", "/nonexistent"], "--sweep"),
     (["privacy", "--encoder", "lens", "--match", "*fcnn*", "--out", "x"], "--match"),
+    (["privacy", "--encoder", "lens", "--attack-seeds", "0", "--out", "x"], "attack_seeds"),
 ])
 def test_errors_are_one_line(argv, needle, capsys):
     assert main(argv) == 2
