@@ -46,8 +46,8 @@ budget "-larger" --pairs 60000 --epochs 50 --hidden 1024 --channels 128
 # 3. The defences' runs: variable patterns and privacy-aware training, 5 epochs each (examples/privacy/defence.yaml).
 optoenc sweep "$HERE/defence.yaml" --out "$W/defence" --workers 2 --threads 1
 
-# 4. The defences against the same attackers.
-optoenc privacy --sweep "$W/defence" --defence --count 1000 \
+# 4. The defences against the same attackers (one seed each: a defence run and its baseline share it).
+optoenc privacy --sweep "$W/defence" --defence --count 1000 --attack-seeds 1 \
     --attacks admm,admm_search,plaintext,learned,learned_one,learned_conv > "$W/privacy-defence.log" 2>&1
 
 # 5. Into docs/results.
