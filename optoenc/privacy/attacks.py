@@ -7,8 +7,9 @@ Known mask (the PSF, hence the scene operator, is known; threat model ``known_ma
 
 Plaintext pairs (the mask is unknown, ``N`` (scene, embedding) pairs are known; ``plaintext``):
 
-* ``plaintext``: the operator estimated by ridge regression from the pairs
-  (:func:`estimate_operator`), then ADMM with the estimate; one row per ``N``.
+* ``plaintext``: the operator estimated by ridge regression from the pairs (:func:`estimate_operator`; the
+  ridge weight that best reconstructs pairs held out from them, :func:`choose_ridge`), then ADMM with the
+  estimate; one row per ``N``.
 
 Black box (public training scenes and the camera's embeddings of them; ``black_box``): an inversion
 network trained on (embedding, scene) pairs of the training split with a validation part and early
@@ -36,10 +37,14 @@ from .inverters import FitReport, build, fit
 from .operators import DTYPE
 
 __all__ = ["ATTACKS", "LEARNED", "THREAT_MODEL", "LearnedConfig", "train_inverter", "estimate_operator",
-           "PLAINTEXT_RIDGE"]
+           "choose_ridge", "PLAINTEXT_RIDGE", "PLAINTEXT_RIDGES", "PLAINTEXT_HOLDOUT"]
 
-#: Ridge weight of the plaintext attacker, relative to the mean scene energy per pixel.
+#: Ridge weight of the plaintext attacker, relative to the mean scene energy per pixel, where it has too few
+#: pairs to choose one (:func:`choose_ridge`).
 PLAINTEXT_RIDGE = 1e-3
+#: The relative ridge weights the plaintext attacker chooses among, and the most pairs it holds out to choose.
+PLAINTEXT_RIDGES = (1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)
+PLAINTEXT_HOLDOUT = 200
 
 
 def train_inverter(clean: torch.Tensor, scenes: torch.Tensor, noise: Callable[[torch.Tensor, torch.Generator], torch.Tensor],
@@ -68,6 +73,28 @@ def train_inverter(clean: torch.Tensor, scenes: torch.Tensor, noise: Callable[[t
 
 
 @torch.no_grad()
+def choose_ridge(scenes: torch.Tensor, embeddings: torch.Tensor,
+                 invert: Callable[[SceneOperator, torch.Tensor], torch.Tensor],
+                 ridges: tuple[float, ...] = PLAINTEXT_RIDGES, holdout: int = PLAINTEXT_HOLDOUT,
+                 generator: torch.Generator | None = None) -> float:
+    """The relative ridge weight (one of ``ridges``, as in :func:`estimate_operator`) with which the attacker best
+    reconstructs pairs it held out: a tenth of its pairs (at most ``holdout``) are inverted by ``invert`` with the
+    operator fitted to the others, and the weight with the lowest squared error against their scenes wins.
+
+    What a competent plaintext attacker does with its own pairs. A fixed weight fails near ``N`` = scene pixels,
+    where the estimate along the scenes' low-variance directions is mostly noise, which the inversion then uses.
+    With fewer than 20 pairs it returns :data:`PLAINTEXT_RIDGE`.
+    """
+    n = len(scenes)
+    if n < 20:
+        return PLAINTEXT_RIDGE
+    order = torch.randperm(n, generator=generator)
+    held, rest = order[: min(holdout, n // 10)], order[min(holdout, n // 10) :]
+    errors = [float(((invert(estimate_operator(scenes[rest], embeddings[rest], r), embeddings[held]).to(DTYPE)
+                      - scenes[held].to(DTYPE)) ** 2).sum()) for r in ridges]
+    return ridges[min(range(len(ridges)), key=errors.__getitem__)]
+
+
 def estimate_operator(scenes: torch.Tensor, embeddings: torch.Tensor, ridge: float = PLAINTEXT_RIDGE) -> SceneOperator:
     """Ridge-regression estimate of the scene operator from ``N`` (scene, embedding) pairs.
 

@@ -19,7 +19,7 @@ from ..errors import ConfigError
 from .settings import PrivacyConfig
 from . import metrics
 from .admm import ADMMConfig, admm
-from .attacks import ATTACKS, LEARNED, THREAT_MODEL, LearnedConfig, PLAINTEXT_RIDGE, estimate_operator, train_inverter
+from .attacks import ATTACKS, LEARNED, THREAT_MODEL, LearnedConfig, choose_ridge, estimate_operator, train_inverter
 from . import patterns
 from .reader import reader
 from .stats import wilson
@@ -241,6 +241,8 @@ def evaluate(
                 k = min(int(k), len(xt))
                 known = xt[-k:].double()  # the attacker's pairs: training scenes through the camera, noise included
                 clean = patterns.capture(ops, known, patterns.draw(k, K, tgt.generator(5)))
-                est = estimate_operator(known, tgt.noise(clean, tgt.generator(2)), PLAINTEXT_RIDGE)
+                noisy = tgt.noise(clean, tgt.generator(2))
+                invert = lambda op, v: admm(op, v, admm_config)  # noqa: E731
+                est = estimate_operator(known, noisy, choose_ridge(known, noisy, invert, generator=tgt.generator(6)))
                 measure(name, admm(est, y, admm_config), n_pairs=k)
     return Result(rows, x[: cfg.examples].float(), tgt.labels[: cfg.examples], y[: cfg.examples].float(), examples, notes)
