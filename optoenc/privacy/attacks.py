@@ -90,11 +90,14 @@ def choose_ridge(scenes: torch.Tensor, embeddings: torch.Tensor,
         return PLAINTEXT_RIDGE
     order = torch.randperm(n, generator=generator)
     held, rest = order[: min(holdout, n // 10)], order[min(holdout, n // 10) :]
-    errors = [float(((invert(estimate_operator(scenes[rest], embeddings[rest], r), embeddings[held]).to(DTYPE)
-                      - scenes[held].to(DTYPE)) ** 2).sum()) for r in ridges]
+    normal = _normal_equations(scenes[rest], embeddings[rest])  # once for every weight
+    truth = scenes[held].to(DTYPE)
+    errors = [float(((invert(_ridge_solve(*normal, r), embeddings[held]).to(DTYPE) - truth) ** 2).sum())
+              for r in ridges]
     return ridges[min(range(len(ridges)), key=errors.__getitem__)]
 
 
+@torch.no_grad()
 def estimate_operator(scenes: torch.Tensor, embeddings: torch.Tensor, ridge: float = PLAINTEXT_RIDGE) -> SceneOperator:
     """Ridge-regression estimate of the scene operator from ``N`` (scene, embedding) pairs.
 
@@ -102,9 +105,17 @@ def estimate_operator(scenes: torch.Tensor, embeddings: torch.Tensor, ridge: flo
     (``n`` scene pixels): well posed for any ``N``, and as ``N`` grows and the
     noise averages out it tends to the true operator.
     """
+    return _ridge_solve(*_normal_equations(scenes, embeddings), ridge)
+
+
+def _normal_equations(scenes: torch.Tensor, embeddings: torch.Tensor):
+    """``X^T X``, ``X^T Y`` and the scene and embedding shapes of the pairs (``X``, ``Y``: one pair a row)."""
     X = scenes.reshape(len(scenes), -1).to(DTYPE)
     Y = embeddings.reshape(len(embeddings), -1).to(DTYPE)
-    xtx = X.T @ X
-    r = ridge * float(torch.trace(xtx)) / X.shape[1]
-    A = torch.linalg.solve(xtx + r * torch.eye(X.shape[1], dtype=DTYPE), X.T @ Y).T
-    return SceneOperator.from_matrix(A, tuple(scenes.shape[1:]), tuple(embeddings.shape[1:]))
+    return X.T @ X, X.T @ Y, tuple(scenes.shape[1:]), tuple(embeddings.shape[1:])
+
+
+def _ridge_solve(xtx: torch.Tensor, xty: torch.Tensor, scene_shape, embedding_shape, ridge: float) -> SceneOperator:
+    r = ridge * float(torch.trace(xtx)) / xtx.shape[0]
+    A = torch.linalg.solve(xtx + r * torch.eye(xtx.shape[0], dtype=DTYPE), xty).T
+    return SceneOperator.from_matrix(A, scene_shape, embedding_shape)

@@ -237,12 +237,12 @@ def evaluate(
             recons, budget = learned_attack(tgt, name, xt, learned_config)
             measure(name, recons, **budget)
         elif name == "plaintext":
+            invert = lambda op, v: admm(op, v, admm_config)  # noqa: E731  (the attack's own inversion)
             for k in cfg.plaintext_n:
                 k = min(int(k), len(xt))
                 known = xt[-k:].double()  # the attacker's pairs: training scenes through the camera, noise included
                 clean = patterns.capture(ops, known, patterns.draw(k, K, tgt.generator(5)))
                 noisy = tgt.noise(clean, tgt.generator(2))
-                invert = lambda op, v: admm(op, v, admm_config)  # noqa: E731
                 est = estimate_operator(known, noisy, choose_ridge(known, noisy, invert, generator=tgt.generator(6)))
-                measure(name, admm(est, y, admm_config), n_pairs=k)
+                measure(name, invert(est, y), n_pairs=k)
     return Result(rows, x[: cfg.examples].float(), tgt.labels[: cfg.examples], y[: cfg.examples].float(), examples, notes)

@@ -10,7 +10,7 @@ import torch
 from optoenc.errors import ConfigError
 from optoenc.privacy import metrics
 from optoenc.privacy.tikhonov import pseudo_inverse
-from optoenc.privacy.attacks import PLAINTEXT_RIDGES, choose_ridge, estimate_operator, train_inverter
+from optoenc.privacy.attacks import PLAINTEXT_RIDGE, PLAINTEXT_RIDGES, choose_ridge, estimate_operator, train_inverter
 from optoenc.encoders.operator import SceneOperator
 from optoenc.privacy.settings import LearnedConfig
 
@@ -77,7 +77,7 @@ def test_plaintext_ridge_is_chosen_by_held_out_reconstructions():
     err = {r: float(((invert(estimate_operator(known, noisy, r), y) - probes) ** 2).mean()) for r in PLAINTEXT_RIDGES}
     assert err[rel] <= 1.05 * min(err.values()) and err[rel] < 0.1 * max(err.values()), (rel, err)
     # Too few pairs to hold any out: the default weight.
-    assert choose_ridge(known[:10], noisy[:10], invert) == 1e-3
+    assert choose_ridge(known[:10], noisy[:10], invert) == PLAINTEXT_RIDGE
 
 
 def test_learned_inverter_learns_and_is_seeded(one_thread):
