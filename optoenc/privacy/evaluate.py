@@ -10,12 +10,15 @@ Example::
 from __future__ import annotations
 
 import hashlib
+import io
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Callable, Optional
 
 import torch
 
 from ..errors import ConfigError
+from ..training.rundir import atomic_write_bytes
 from .settings import PrivacyConfig
 from . import metrics
 from .admm import ADMMConfig, admm
@@ -25,7 +28,8 @@ from .reader import reader
 from .stats import wilson
 from .tikhonov import TikhonovConfig, pseudo_inverse
 
-__all__ = ["PrivacyConfig", "Result", "Target", "evaluate", "target", "learned_attack", "dataset_token", "MULTI_PATTERN"]
+__all__ = ["PrivacyConfig", "Result", "Target", "evaluate", "target", "learned_attack", "dataset_token", "MULTI_PATTERN",
+           "AttackStore"]
 
 #: Attacks on a camera that shows several patterns -> the attack each equals on a single-pattern camera
 #: (where it is not run: its row would repeat that attack's).
@@ -128,6 +132,44 @@ class Target:
         return row
 
 
+class AttackStore:
+    """Each finished attack's rows and example reconstructions, kept in a folder so that an interrupted measurement
+    resumes at the attack it was in (one ``<attack>.pt`` per attack, written atomically).
+
+    A stored attack is reused only when its ``token`` (a digest of the probes' embeddings, hence of the encoder, the
+    noise seed and the probes, and of every setting of the measurement) equals the current one; any other file is
+    measured again and replaced.
+    """
+
+    def __init__(self, folder: str | Path, token: str):
+        self.folder, self.token = Path(folder), token
+
+    def _path(self, name: str) -> Path:
+        return self.folder / f"{name}.pt"
+
+    def load(self, name: str) -> tuple[list[dict], dict[str, torch.Tensor]] | None:
+        """The stored ``(rows, examples)`` of attack ``name``, or None (absent, unreadable or from other settings)."""
+        try:
+            saved = torch.load(self._path(name), map_location="cpu", weights_only=True)
+        except Exception:  # absent, partly written by another writer, or not a store file: measure again
+            return None
+        if not isinstance(saved, dict) or saved.get("token") != self.token:
+            return None
+        return saved["rows"], saved["examples"]
+
+    def save(self, name: str, rows: list[dict], examples: dict[str, torch.Tensor]) -> Path:
+        buf = io.BytesIO()
+        torch.save({"token": self.token, "rows": rows, "examples": examples}, buf)
+        return atomic_write_bytes(self._path(name), buf.getvalue())
+
+
+def _store_token(y: torch.Tensor, *settings) -> str:
+    h = hashlib.sha256(y.detach().cpu().contiguous().numpy().tobytes())
+    for s in settings:
+        h.update(repr(s).encode())
+    return h.hexdigest()
+
+
 def target(encoder, splits, config: Optional[PrivacyConfig] = None, cache_root: str | None = None,
            progress: Callable[[str], None] | None = None) -> Target:
     """The first ``config.count`` test scenes as probes: their noisy embeddings, galleries and the reader."""
@@ -188,6 +230,7 @@ def evaluate(
     linear_config: Optional[TikhonovConfig] = None,
     cache_root: str | None = None,
     progress: Callable[[str], None] | None = None,
+    resume_dir: str | Path | None = None,
 ) -> Result:
     """Attack ``encoder``'s noisy test embeddings with each of ``attacks`` and measure the reconstructions.
 
@@ -198,6 +241,10 @@ def evaluate(
     give their pairs (``n_pairs``); learned rows their budget (:func:`learned_attack`), averaged over
     ``config.attack_seeds`` attackers. A ``mean_scene`` row (the mean training scene for every input: no
     information) is the floor.
+
+    ``resume_dir``: a folder where each finished attack is kept (:class:`AttackStore`); a measurement interrupted
+    and started again with the same folder and settings reuses the attacks that finished (the same rows: every
+    attack draws from its own seeded streams).
     """
     cfg = config or PrivacyConfig()
     unknown = sorted(set(attacks) - set(ATTACKS))
@@ -217,12 +264,22 @@ def evaluate(
 
     xt = splits.train[0]
     measure("mean_scene", xt.double().mean(0, keepdim=True).expand_as(x))
+    store = None if resume_dir is None else AttackStore(
+        resume_dir, _store_token(y, cfg, admm_config or ADMMConfig(), learned_config or LearnedConfig(),
+                                 linear_config or TikhonovConfig()))
     for name in attacks:
         if K == 1 and name in MULTI_PATTERN:
             notes.append(f"{name} not run: {encoder.name} shows one pattern, where it is the same attack as "
                          f"{MULTI_PATTERN[name]}")
             continue
+        kept = store.load(name) if store else None
+        if kept is not None:
+            say(f"{name} (kept from an earlier, interrupted measurement)")
+            rows += kept[0]
+            examples.update(kept[1])
+            continue
         say(name)
+        first_row, known_examples = len(rows), set(examples)
         if name == "admm":
             measure(name, patterns.grouped(lambda op, v: admm(op, v, admm_config), ops, y, shown))
         elif name == "admm_search":
@@ -245,4 +302,6 @@ def evaluate(
                 noisy = tgt.noise(clean, tgt.generator(2))
                 est = estimate_operator(known, noisy, choose_ridge(known, noisy, invert, generator=tgt.generator(6)))
                 measure(name, invert(est, y), n_pairs=k)
+        if store:
+            store.save(name, rows[first_row:], {k: v for k, v in examples.items() if k not in known_examples})
     return Result(rows, x[: cfg.examples].float(), tgt.labels[: cfg.examples], y[: cfg.examples].float(), examples, notes)

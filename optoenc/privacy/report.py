@@ -7,7 +7,8 @@ example pictures); a sweep's combined table, the strongest attack per cell
 and threat model (``privacy_best.csv``) and the privacy-utility plots go to
 ``SWEEP_DIR/privacy/``. ``privacy.md`` opens with the strongest attack per
 threat model (:func:`best_per_threat_model`), then lists every attack. A run whose ``privacy/privacy.csv`` exists is not
-measured again (delete it to re-measure), so an interrupted sweep resumes.
+measured again (delete it to re-measure), so an interrupted sweep resumes; a run interrupted mid-way keeps its
+finished attacks in ``privacy/partial/`` and resumes at the attack it was in.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import csv
 import fnmatch
 import json
 import math
+import shutil
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -46,6 +48,8 @@ COLUMNS = (
 #: Columns read back as text.
 _TEXT = ("encoder", "embedding", "threat_model", "attack", "run", "epochs_run", "reid_seeds")
 PRIVACY_DIR = "privacy"
+#: Sub-folder of a run's privacy folder holding its finished attacks until the table is written.
+PARTIAL_DIR = "partial"
 
 
 def load_run(run_dir: str | Path, overrides: Sequence[str] = (), which: str = "best"):
@@ -223,17 +227,21 @@ def measure_run(run_dir: Path, evaluate_kw: dict, overrides: Sequence[str] = (),
     from .evaluate import evaluate
 
     out = Path(out) if out else Path(run_dir) / PRIVACY_DIR
-    table = out / "privacy.csv"
+    table, partial = out / "privacy.csv", out / PARTIAL_DIR
     if table.is_file() and not force:
         return read_table(table)
+    if force:
+        shutil.rmtree(partial, ignore_errors=True)
     run, encoder, summary = load_run(run_dir, overrides)
     splits = get_registry("dataset").get(run.names["dataset"])(run.dataset).load()
-    result = evaluate(encoder, splits, cache_root=run.trainer.cache_dir, progress=say, **evaluate_kw)
+    result = evaluate(encoder, splits, cache_root=run.trainer.cache_dir, progress=say, resume_dir=partial,
+                      **evaluate_kw)
     for line in result.notes:
         note(line)
     rows = run_rows(result, encoder, summary, Path(run_dir).name)
     save_examples(out, result, f"{encoder.name} {rows[0]['embedding']}")
     write_table(rows, table, out / "privacy.md")
+    shutil.rmtree(partial, ignore_errors=True)
     return rows
 
 

@@ -131,3 +131,38 @@ def test_privacy_sweep_table_and_plot(tmp_path, capsys):
     assert [(r["embedding"], r["threat_model"]) for r in best] == [
         (e, t) for e in ("12x16", "3x4") for t in ("known_mask", "plaintext", "black_box")]
     assert md.startswith("## Strongest attack per threat model")
+
+
+def test_an_interrupted_measurement_resumes_at_the_attack_it_was_in(tmp_path, monkeypatch, one_thread):
+    """Finished attacks are kept in privacy/partial/ and not run again; the resumed table equals an uninterrupted
+    one (every attack draws from its own seeded streams); a kept attack of other settings is measured again."""
+    from optoenc.cli.main import build_parser
+    from optoenc.cli.privacy import _evaluate_kw
+    from optoenc.privacy import evaluate as ev
+    from optoenc.privacy.report import PARTIAL_DIR, measure_run
+
+    extra = _quick_data(tmp_path)
+    run = _fake_run(tmp_path / "sweep", "lens-3x4", "lens", (3, 4), 0.5, extra)
+    argv = ["privacy", "--run", str(run), "--attacks", "admm,plaintext,learned", "--count", "20", "--gallery", "10",
+            "--plaintext-n", "50", "--learned-pairs", "100", "--learned-epochs", "1", "--attack-seeds", "1"]
+    kw = lambda *more: _evaluate_kw(build_parser().parse_known_args(argv + list(more))[0])  # noqa: E731
+    partial = run / "privacy" / PARTIAL_DIR
+
+    def stop(*_a, **_k):
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as m:
+        m.setattr(ev, "learned_attack", stop)
+        with pytest.raises(KeyboardInterrupt):
+            measure_run(run, kw())
+    assert sorted(p.name for p in partial.iterdir()) == ["admm.pt", "plaintext.pt"]
+    assert not (run / "privacy" / "privacy.csv").exists()
+    with monkeypatch.context() as m:
+        m.setattr(ev, "admm", stop)  # admm and plaintext (whose inversion is ADMM) must come from the store
+        with pytest.raises(KeyboardInterrupt):  # ... but not when the settings differ: 30 ADMM iterations
+            measure_run(run, kw("--iterations", "30"))
+        resumed = measure_run(run, kw())
+    assert not partial.exists()
+    fresh = measure_run(run, kw(), out=tmp_path / "fresh")
+    # The same computations on the same thread count: equal to the last bit, not merely close.
+    assert resumed == fresh and [r["attack"] for r in fresh] == ["mean_scene", "admm", "plaintext", "learned"]
