@@ -28,7 +28,7 @@ from .reader import reader
 from .stats import wilson
 from .tikhonov import TikhonovConfig, pseudo_inverse
 
-__all__ = ["PrivacyConfig", "Result", "Target", "evaluate", "target", "learned_attack", "dataset_token", "MULTI_PATTERN",
+__all__ = ["PrivacyConfig", "Result", "Target", "evaluate", "target", "learned_attack", "MULTI_PATTERN",
            "AttackStore"]
 
 #: Attacks on a camera that shows several patterns -> the attack each equals on a single-pattern camera
@@ -48,16 +48,6 @@ class Result:
     examples: dict[str, torch.Tensor] = field(default_factory=dict)
     #: One line per requested attack that does not apply to this camera (why it has no row).
     notes: list[str] = field(default_factory=list)
-
-
-def dataset_token(splits) -> str:
-    """The dataset's content digest (hashing the tensors when the dataset gives none)."""
-    if splits.digest:
-        return splits.digest
-    h = hashlib.sha256()
-    for k in ("train", "val", "test"):
-        h.update(getattr(splits, k).images.contiguous().numpy().tobytes())
-    return h.hexdigest()
 
 
 def _noise(encoder) -> Callable[[torch.Tensor, torch.Generator], torch.Tensor]:
@@ -185,7 +175,7 @@ def target(encoder, splits, config: Optional[PrivacyConfig] = None, cache_root: 
     y = _noise(encoder)(patterns.capture(ops, x, shown), _generator(cfg.seed, 1))
     gallery = metrics.reid_gallery(labels, y_pool, torch.arange(n), cfg.gallery, cfg.seed)
     say("reader")
-    read = reader(splits, dataset_token(splits), cache_root, seed=cfg.seed)
+    read = reader(splits, cache_root, seed=cfg.seed)
     return Target(encoder, x, labels, y, shown, ops, x_pool, gallery, read, cfg)
 
 

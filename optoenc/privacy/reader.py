@@ -53,16 +53,15 @@ def _train(x: torch.Tensor, y: torch.Tensor, num_classes: int, seed: int, epochs
     return model.eval()
 
 
-def reader(splits, dataset_token: str, root: str | None = None, seed: int = 0, epochs: int = READER_EPOCHS,
+def reader(splits, root: str | None = None, seed: int = 0, epochs: int = READER_EPOCHS,
            cache: bool = True) -> Reader:
     """The cached reader for a dataset's :class:`~optoenc.datasets.base.Splits` (trained on its training split).
 
     Args:
-        dataset_token: a content digest of the dataset (``splits.digest``, or a hash of the tensors).
         root: cache folder override (``trainer.cache_dir``).
     """
     x, y = splits.train
-    key = hashlib.sha256(repr((_VERSION, dataset_token, tuple(x.shape), seed, epochs)).encode()).hexdigest()[:20]
+    key = hashlib.sha256(repr((_VERSION, splits.content_digest(), tuple(x.shape), seed, epochs)).encode()).hexdigest()[:20]
     path = Path(cache_dir(root)).parent / "privacy" / f"reader-{key}.pt"
     model = Reader(splits.num_classes, x.shape[1])
     if cache and path.is_file():
