@@ -283,9 +283,7 @@ def test_budget_table_says_where_an_attacker_levels_off(tmp_path):
 def test_privacy_headline_has_one_line_per_cell_with_each_threat_models_strongest_attack():
     """examples/privacy/make_privacy.py: a cell's line names each threat model's strongest attack (plaintext with
     its pair count) and its re-identification interval; a threat model with no attack shows dashes."""
-    spec = importlib.util.spec_from_file_location("make_privacy", EXAMPLES / "privacy" / "make_privacy.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = _make_privacy()
     row = {"encoder": "lens", "embedding": "6x8", "test_acc": 0.7348, "psnr": 14.04, "ssim": 0.512}
     best = [{**row, "threat_model": "known_mask", "attack": "admm", "n_pairs": "", "reid_top1": 0.1,
              "reid_ci_low": 0.083, "reid_ci_high": 0.12},
@@ -295,6 +293,66 @@ def test_privacy_headline_has_one_line_per_cell_with_each_threat_models_stronges
     assert len(lines) == 3
     assert lines[2] == ("| lens | 6x8 | 73.5 % | admm | 10.0 [8.3, 12.0] | 14.0 | 0.51 | plaintext (N=1000) | "
                         "20.0 [17.6, 22.6] | 14.0 | 0.51 | - | - | - | - |")
+
+
+def _make_privacy():
+    spec = importlib.util.spec_from_file_location("make_privacy", EXAMPLES / "privacy" / "make_privacy.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _best_row(enc, emb, acc, reid, threat="black_box", attack="learned_conv"):
+    from optoenc.privacy.stats import wilson
+
+    lo, hi = wilson(reid, 1000)
+    return {"encoder": enc, "embedding": emb, "test_acc": acc, "threat_model": threat, "attack": attack, "n_pairs": "",
+            "reid_top1": reid, "reid_ci_low": lo, "reid_ci_high": hi, "psnr": 12.0, "ssim": 0.3}
+
+
+def test_privacy_question_names_the_cameras_within_a_point_and_twice_chance():
+    """The headline's question: of the cameras at most 1 point below the best accuracy, which keep the strongest
+    black-box re-identification <= 2x chance (2 % with a gallery of 100); else the most accurate one that does."""
+    mod = _make_privacy()
+    best = [_best_row("learned_slm", "24x32", 0.98, 0.05), _best_row("fixed_slm", "24x32", 0.975, 0.015),
+            _best_row("lens", "3x4", 0.60, 0.01), _best_row("lens", "24x32", 0.99, 0.9, threat="known_mask")]
+    text = mod.question(best, chance=0.01)
+    assert "(learned_slm 24x32, 98.0 %)" in text  # the known-mask row's accuracy is not a black-box row: ignored
+    assert "| fixed_slm | 24x32 | 97.5 % | 0.50 | learned_conv | 1.5 [0.9, 2.5] | yes |" in text
+    assert "| lens | 3x4 |" not in text and "Cameras that meet both: fixed_slm 24x32." in text
+    best[1]["reid_top1"] = 0.03  # now above 2x chance: none qualifies, and the most accurate private camera is named
+    text = mod.question(best, chance=0.01)
+    assert "Cameras that meet both: none." in text and "chance: lens 3x4, 60.0 % (38.0 points below the best" in text
+
+
+def test_make_privacy_derives_its_tables_from_the_committed_csvs_and_checks_them(tmp_path, capsys):
+    """make_privacy.py with no measurement folders derives every table from OUT's CSVs; --check exits 0 on them
+    and 1 naming the file and line after a hand edit."""
+    from optoenc.privacy import defence
+    from optoenc.privacy.report import COLUMNS, write_table
+
+    mod = _make_privacy()
+    out = tmp_path / "results"
+    rows = [_best_row("lens", "6x8", 0.73, 0.2, "known_mask", "admm"), _best_row("lens", "6x8", 0.73, 0.1),
+            _best_row("learned_slm", "6x8", 0.95, 0.04)]
+    for r in rows:
+        r.update(psnr_std=1.0, ssim_std=0.1, readability=0.9, readability_ci_low=0.88, readability_ci_high=0.92, run="x")
+    write_table(rows, out / "privacy.csv")
+    budget = [_budget_row(p, e, 0.3) for p in (1000, 60000) for e in (5, 50)] + [_budget_row(60000, 50, 0.31, 1024, "larger")]
+    write_table(budget, out / "privacy" / "budget.csv", columns=(*COLUMNS, "attacker"))
+    defended = [{**rows[1], "patterns": k, "adversary_weight": 0.0, "seed": 0, "epochs": 5} for k in (1, 4)]
+    defence.write_defence(defence.defence_rows([]) + defended, out / "privacy")
+    assert mod.main(["--out", str(out)]) == 0
+    for name in ("privacy.md", "privacy_best.csv", "headline.md", "budget.md", "attacker_size.md", "defence.md",
+                 "privacy_utility.png", "budget.png"):
+        assert (out / "privacy" / name).stat().st_size > 0, name
+    assert "| lens | 6x8 | 73.0 % | admm | 20.0 [17.6, 22.6] |" in (out / "privacy" / "headline.md").read_text()
+    assert mod.main(["--check", "--out", str(out)]) == 0
+    md = out / "privacy" / "headline.md"
+    md.write_text(md.read_text().replace("20.0 [17.6, 22.6]", "2.0 [17.6, 22.6]"))
+    capsys.readouterr()
+    assert mod.main(["--check", "--out", str(out)]) == 1
+    assert "headline.md:3: committed" in capsys.readouterr().err
 
 
 def test_privacy_regeneration_script_parses_and_names_existing_pieces():

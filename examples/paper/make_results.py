@@ -444,19 +444,27 @@ def write(out: Path, cells_root: Path, explored_root: Path, figures: bool = True
     return written
 
 
+def first_difference(mine: Path, regenerated: str, writer: str = "make_results.py") -> str | None:
+    """Where the committed file ``mine`` first differs from the ``regenerated`` text: ``FILE:LINE: committed ...,
+    regenerated ...``; None where they agree."""
+    if not mine.is_file():
+        return f"{mine}: missing ({writer} writes it)"
+    a, b = mine.read_text().splitlines(), regenerated.splitlines()
+    for i, (x, y) in enumerate(zip(a, b), start=1):
+        if x != y:
+            return f"{mine}:{i}: committed {x!r}, regenerated {y!r}"
+    if len(a) != len(b):
+        return f"{mine}: {len(a)} lines committed, {len(b)} regenerated"
+    return None
+
+
 def check(committed: Path, cells_root: Path, explored_root: Path) -> str | None:
     """The first difference between the committed tables and what :func:`write` writes; None where they agree."""
     with tempfile.TemporaryDirectory() as tmp:
         for path in write(Path(tmp), cells_root, explored_root, figures=False):
-            mine = committed / path.name
-            if not mine.is_file():
-                return f"{mine}: missing (make_results.py writes it)"
-            a, b = mine.read_text().splitlines(), path.read_text().splitlines()
-            for i, (x, y) in enumerate(zip(a, b), start=1):
-                if x != y:
-                    return f"{mine}:{i}: committed {x!r}, regenerated {y!r}"
-            if len(a) != len(b):
-                return f"{mine}: {len(a)} lines committed, {len(b)} regenerated"
+            diff = first_difference(committed / path.name, path.read_text())
+            if diff:
+                return diff
     return None
 
 

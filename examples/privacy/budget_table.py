@@ -29,6 +29,8 @@ from optoenc.training.rundir import atomic_write_text
 
 #: The larger attackers' files end with this (before ``.csv``).
 LARGER = "-larger"
+#: budget.csv's columns: the privacy table's and which attacker (``default`` or ``larger``).
+BUDGET_COLUMNS = (*COLUMNS, "attacker")
 
 
 def _n(v) -> str:
@@ -158,7 +160,7 @@ def main(argv=None) -> int:
         print(f"budget_table: {args.folder} holds no budget CSVs", file=sys.stderr)
         return 2
     args.out.mkdir(parents=True, exist_ok=True)
-    write_table(rows, args.out / "budget.csv", columns=(*COLUMNS, "attacker"))
+    write_table(rows, args.out / "budget.csv", columns=BUDGET_COLUMNS)
     atomic_write_text(args.out / "budget.md", budget_markdown(rows))
     atomic_write_text(args.out / "attacker_size.md", size_markdown(size_rows(rows)))
     figure(rows, args.out / "budget.png")

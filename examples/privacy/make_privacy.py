@@ -1,19 +1,26 @@
-"""Collect the privacy measurements into docs/results/: the headline table, the budget study, the defences.
+"""Write docs/results/privacy* from the privacy measurements; ``--check`` compares the committed tables.
 
-    python examples/privacy/make_privacy.py --table RUNS/privacy --budget BUDGET_DIR --defence DEFENCE_DIR \
-        --out docs/results
+    python examples/privacy/make_privacy.py --table W/privacy/all --cells T1/cells --budget W/budget \\
+        --defence W/defence/privacy        # copy the measurements in, then derive the tables and figures
+    python examples/privacy/make_privacy.py            # derive them again from the committed CSVs
+    python examples/privacy/make_privacy.py --check    # exit 0 iff every derived table is what it would write;
+                                                       # else 1, naming the first difference
 
-* ``--table``: the folder ``optoenc privacy --sweep CELLS --match '*decoder=fcnn,seed=0' --out FOLDER`` wrote
-  (privacy.csv, privacy_best.csv, the privacy-utility figures); its rows name their run directories, whose
-  ``privacy/recon_<attack>.png`` pictures are found under ``--cells`` (default: the runs' own folder as
-  recorded beside the table, i.e. the ``--sweep`` folder).
-* ``--budget``: the folder of ``budget_study.py`` CSVs (``budget_table.py`` reads it).
-* ``--defence``: the folder ``optoenc privacy --sweep DEFENCE_RUNS --defence`` wrote (defence.csv, defence.md).
+The measurements (copied in, the data the rest is derived from):
 
-Writes ``OUT/privacy.csv`` (every attack on every cell) and, under ``OUT/privacy/``: ``privacy.md`` (every attack),
-``privacy_best.csv``, ``headline.md`` (one line per encoder and embedding: accuracy and the strongest attack of
-each threat model with its re-identification interval), the privacy-utility figures, example reconstructions,
-``budget.*`` and ``attacker_size.md``, ``defence.csv`` and ``defence.md``. Nothing is trained.
+* ``OUT/privacy.csv``: every attack on every camera, from ``--table``, the folder ``optoenc privacy --sweep CELLS
+  --match '*decoder=fcnn,seed=0' --out FOLDER`` wrote; with it the example reconstructions
+  (``privacy/<encoder>-<embedding>_<attack>.png``) from the run directories under ``--cells``;
+* ``OUT/privacy/budget.csv``: every row of ``budget_study.py``'s CSVs in ``--budget`` (``budget_table.py``);
+* ``OUT/privacy/defence.csv``: from ``--defence``, the folder ``optoenc privacy --sweep DEFENCE_RUNS --defence``
+  wrote.
+
+Derived from those CSVs alone (``--check`` compares these text tables): ``privacy/privacy.md`` (the strongest attack
+per threat model, then every attack), ``privacy_best.csv``, ``headline.md`` (one line per encoder and embedding:
+accuracy and each threat model's strongest attack with its re-identification interval; then which cameras keep
+the strongest black-box re-identification within 2x chance at most 1 point below the best accuracy),
+``budget.md``, ``attacker_size.md``, ``defence.md``; and the figures (``privacy_utility*.png``, ``budget.png``;
+redrawn, not compared). Nothing is trained.
 """
 
 from __future__ import annotations
@@ -24,21 +31,37 @@ import shutil
 import sys
 from pathlib import Path
 
-from optoenc.privacy.report import budget_text, read_table
-from optoenc.privacy.tables import acc_text, rate_text
-from optoenc.privacy.settings import THREAT_MODELS
+from optoenc.privacy import defence
+from optoenc.privacy.report import COLUMNS, best_per_threat_model, document, read_table, write_table
+from optoenc.privacy.settings import THREAT_MODELS, PrivacyConfig
+from optoenc.privacy.tables import acc_text, csv_text, given, rate_text
 from optoenc.training.rundir import atomic_write_text
 
 HERE = Path(__file__).parent
+RESULTS = HERE.parent.parent / "docs" / "results"
 #: Example reconstructions shown in docs/privacy.md: (encoder, embedding, attack).
 EXAMPLES = (("fixed_slm", "24x32", "admm"), ("learned_slm", "6x8", "admm"), ("learned_slm", "6x8", "learned_conv"),
             ("lens", "24x32", "pinv"), ("lens", "6x8", "learned_conv"), ("learned_slm", "24x32", "learned_conv"))
 ENCODERS = ("lens", "coded_aperture", "diffuser", "fixed_slm", "learned_slm")
 EMBEDDINGS = ("24x32", "12x16", "6x8", "3x4")
+#: The question of docs/privacy.md: which cameras keep the strongest black-box re-identification within
+#: FACTOR x chance while losing at most MARGIN (accuracy, fraction) against the most accurate camera.
+FACTOR, MARGIN = 2, 0.01
+#: Re-identification chance: one in the gallery (the measurements' default gallery).
+CHANCE = 1.0 / PrivacyConfig().gallery
+
+
+def _load(name: str):
+    """An example script as a module (they are scripts, not a package)."""
+    path = {"budget_table": HERE / "budget_table.py", "make_results": HERE.parent / "paper" / "make_results.py"}[name]
+    spec = importlib.util.spec_from_file_location(name, path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
 
 
 def _attack(r: dict) -> str:
-    return f"{r['attack']} ({budget_text(r)})" if r["attack"] == "plaintext" else r["attack"]
+    return f"{r['attack']} (N={int(float(r['n_pairs']))})" if r["attack"] == "plaintext" else r["attack"]
 
 
 def headline(best: list[dict]) -> str:
@@ -58,60 +81,138 @@ def headline(best: list[dict]) -> str:
             if r is None:
                 line += ["-"] * 4
                 continue
-            line += [_attack(r), rate_text(r),
-                     f"{float(r['psnr']):.1f}", f"{float(r['ssim']):.2f}"]
+            line += [_attack(r), rate_text(r), f"{float(r['psnr']):.1f}", f"{float(r['ssim']):.2f}"]
         lines.append("| " + " | ".join(line) + " |")
     return "\n".join(lines) + "\n"
 
 
-def _budget_table():
-    spec = importlib.util.spec_from_file_location("budget_table", HERE / "budget_table.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+def question(best: list[dict], chance: float = CHANCE, factor: float = FACTOR, margin: float = MARGIN) -> str:
+    """Which cameras keep the strongest black-box re-identification within ``factor`` x chance at most ``margin``
+    below the best test accuracy; and the most accurate camera that keeps it there at all."""
+    bb = [r for r in best if r["threat_model"] == "black_box" and given(r.get("test_acc"))]
+    if not bb:
+        return ""
+    top = max(bb, key=lambda r: float(r["test_acc"]))
+    acc = float(top["test_acc"])
+    limit = factor * chance
+    name = lambda r: f"{r['encoder']} {r['embedding']}"  # noqa: E731
+    near = sorted((r for r in bb if float(r["test_acc"]) >= acc - margin - 1e-12), key=lambda r: -float(r["test_acc"]))
+    lines = [f"**Within {100 * margin:g} point of the best accuracy** ({name(top)}, {acc_text(top)}), the strongest "
+             f"black-box attack against {factor:g}x chance ({100 * limit:g} %):", "",
+             "| encoder | embedding | test acc | below the best [pts] | black-box attack | re-id [%] (95 % CI) "
+             "| within 2x chance |", "|---|---|---|---|---|---|---|"]
+    for r in near:
+        within = "yes" if float(r["reid_top1"]) <= limit else "no"
+        lines.append(f"| {r['encoder']} | {r['embedding']} | {acc_text(r)} | {100 * (acc - float(r['test_acc'])):.2f} "
+                     f"| {_attack(r)} | {rate_text(r)} | {within} |")
+    kept = [r for r in near if float(r["reid_top1"]) <= limit]
+    private = sorted((r for r in bb if float(r["reid_top1"]) <= limit), key=lambda r: -float(r["test_acc"]))
+    lines += ["", f"Cameras that meet both: {', '.join(name(r) for r in kept) if kept else 'none'}. "]
+    if private:
+        p = private[0]
+        lines[-1] += (f"The most accurate camera whose strongest black-box re-identification is within {factor:g}x "
+                      f"chance: {name(p)}, {acc_text(p)} ({100 * (acc - float(p['test_acc'])):.1f} points below the "
+                      f"best; re-id {rate_text(p)} %).")
+    else:
+        lines[-1] += f"No camera keeps the strongest black-box re-identification within {factor:g}x chance."
+    return "\n".join(lines) + "\n"
 
 
-def collect(table: Path, cells: Path, out: Path, budget: Path | None = None, defence: Path | None = None) -> list[Path]:
-    """Copy and derive everything listed in the module docstring; returns the files written."""
+def derive(out: Path, chance: float = CHANCE) -> dict[Path, str]:
+    """Every derived text table (path -> text) from the measurement CSVs under ``out`` that exist."""
+    priv = out / "privacy"
+    texts: dict[Path, str] = {}
+    if (out / "privacy.csv").is_file():
+        rows = read_table(out / "privacy.csv")
+        best = best_per_threat_model(rows)
+        texts[priv / "privacy.md"] = document(rows)
+        texts[priv / "privacy_best.csv"] = csv_text(best, COLUMNS)
+        texts[priv / "headline.md"] = headline(best) + "\n" + question(best, chance)
+    if (priv / "budget.csv").is_file():
+        bt, rows = _load("budget_table"), read_table(priv / "budget.csv")
+        texts[priv / "budget.md"] = bt.budget_markdown(rows)
+        texts[priv / "attacker_size.md"] = bt.size_markdown(bt.size_rows(rows))
+    if (priv / "defence.csv").is_file():
+        texts[priv / "defence.md"] = defence.markdown(read_table(priv / "defence.csv"))
+    return texts
+
+
+def figures(out: Path, chance: float = CHANCE) -> list[Path]:
+    """The privacy-utility figures and the budget figure from the committed CSVs."""
+    from optoenc.privacy.pictures import save_frontier, save_threat_frontiers
+
+    priv, paths = out / "privacy", []
+    if (out / "privacy.csv").is_file():
+        rows = read_table(out / "privacy.csv")
+        paths.append(save_threat_frontiers(priv / "privacy_utility.png", best_per_threat_model(rows), THREAT_MODELS,
+                                           chance))
+        for attack in ("learned", "admm"):
+            if any(r["attack"] == attack for r in rows):
+                paths.append(save_frontier(priv / f"privacy_utility_{attack}.png", rows, attack, chance))
+    if (priv / "budget.csv").is_file():
+        paths.append(_load("budget_table").figure(read_table(priv / "budget.csv"), priv / "budget.png"))
+    return [p for p in paths if p is not None]
+
+
+def collect(out: Path, table: Path | None = None, cells: Path | None = None, budget: Path | None = None,
+            defence_dir: Path | None = None) -> list[Path]:
+    """Copy the measurements in (the module docstring lists them); returns the files written."""
     priv = out / "privacy"
     priv.mkdir(parents=True, exist_ok=True)
-    written = [Path(shutil.copyfile(table / "privacy.csv", out / "privacy.csv"))]
-    for name in ("privacy.md", "privacy_best.csv", "privacy_utility.png", "privacy_utility_admm.png",
-                 "privacy_utility_learned.png"):
-        if (table / name).is_file():
-            written.append(Path(shutil.copyfile(table / name, priv / name)))
-    best = read_table(table / "privacy_best.csv")
-    written.append(atomic_write_text(priv / "headline.md", headline(best)))
-    runs = {(r["encoder"], r["embedding"]): r["run"] for r in read_table(table / "privacy.csv")}
-    for enc, emb, attack in EXAMPLES:
-        run = runs.get((enc, emb))
-        src = cells / str(run) / "privacy" / f"recon_{attack}.png" if run else None
-        if src is not None and src.is_file():
-            written.append(Path(shutil.copyfile(src, priv / f"{enc}-{emb}_{attack}.png")))
+    written = []
+    if table is not None:
+        written.append(Path(shutil.copyfile(table / "privacy.csv", out / "privacy.csv")))
+        runs = {(r["encoder"], r["embedding"]): r["run"] for r in read_table(table / "privacy.csv")}
+        for enc, emb, attack in EXAMPLES:
+            run = runs.get((enc, emb))
+            src = (cells or table.parent) / str(run) / "privacy" / f"recon_{attack}.png" if run else None
+            if src is not None and src.is_file():
+                written.append(Path(shutil.copyfile(src, priv / f"{enc}-{emb}_{attack}.png")))
     if budget is not None:
-        if _budget_table().main([str(budget), "--out", str(priv)]) != 0:
-            raise SystemExit(f"make_privacy: no budget CSVs in {budget}")
-        written += [priv / n for n in ("budget.csv", "budget.md", "attacker_size.md", "budget.png")]
-    if defence is not None:
-        for name in ("defence.csv", "defence.md"):
-            written.append(Path(shutil.copyfile(defence / name, priv / name)))
+        bt = _load("budget_table")
+        rows = bt.load(budget)
+        if not rows:
+            raise SystemExit(f"make_privacy: --budget {budget}: no budget CSVs")
+        written.append(write_table(rows, priv / "budget.csv", columns=bt.BUDGET_COLUMNS))
+    if defence_dir is not None:
+        written.append(Path(shutil.copyfile(defence_dir / "defence.csv", priv / "defence.csv")))
     return written
+
+
+def check(out: Path) -> str | None:
+    """The first difference between the committed derived tables and what :func:`derive` gives; None where they
+    agree."""
+    first_difference = _load("make_results").first_difference
+    for path, text in derive(out).items():
+        diff = first_difference(path, text, "make_privacy.py")
+        if diff:
+            return diff
+    return None
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--table", type=Path, required=True, help="folder of `optoenc privacy --sweep ... --out`")
-    ap.add_argument("--cells", type=Path, help="folder of the run directories the table's rows name "
-                    "(default: the --table folder's parent)")
+    ap.add_argument("--table", type=Path, help="folder of `optoenc privacy --sweep ... --out` (privacy.csv)")
+    ap.add_argument("--cells", type=Path, help="folder of the run directories the table's rows name (their "
+                    "example reconstructions; default: the --table folder's parent)")
     ap.add_argument("--budget", type=Path, help="folder of budget_study.py CSVs")
-    ap.add_argument("--defence", type=Path, help="folder of `optoenc privacy --sweep ... --defence`")
-    ap.add_argument("--out", type=Path, default=HERE.parent.parent / "docs" / "results", help="docs/results (default)")
+    ap.add_argument("--defence", type=Path, help="folder of `optoenc privacy --sweep ... --defence` (defence.csv)")
+    ap.add_argument("--out", type=Path, default=RESULTS, help="docs/results (default)")
+    ap.add_argument("--check", action="store_true", help="compare the committed derived tables with what would be "
+                    "written; exit 1 naming the first difference")
     args = ap.parse_args(argv)
-    if not (args.table / "privacy_best.csv").is_file():
-        print(f"make_privacy: --table {args.table}: no privacy_best.csv (run optoenc privacy --sweep first)",
-              file=sys.stderr)
+    if args.check:
+        diff = check(args.out)
+        if diff:
+            print(f"make_privacy --check: {diff}", file=sys.stderr)
+            return 1
+        return 0
+    if args.table is not None and not (args.table / "privacy.csv").is_file():
+        print(f"make_privacy: --table {args.table}: no privacy.csv (run optoenc privacy --sweep first)", file=sys.stderr)
         return 2
-    files = collect(args.table, args.cells or args.table.parent, args.out, args.budget, args.defence)
+    files = collect(args.out, args.table, args.cells, args.budget, args.defence)
+    files += [atomic_write_text(path, text) for path, text in derive(args.out).items()]
+    files += figures(args.out)
     print(f"{len(files)} files -> {args.out}")
     return 0
 

@@ -109,7 +109,7 @@ def markdown(rows: Sequence[dict]) -> str:
         att = r["attack"] + (f" (N={int(float(r['n_pairs']))})" if r.get("n_pairs") not in ("", None) else "")
         reid = rate_text(r)
         lines.append(
-            f"| {r['embedding']} | {r['patterns']} | {r['adversary_weight']:g} | {r.get('seed', 0)} | {_pct(r['test_acc'])} | {att} "
+            f"| {r['embedding']} | {int(float(r['patterns']))} | {float(r['adversary_weight']):g} | {int(float(r.get('seed', 0)))} | {_pct(r['test_acc'])} | {att} "
             f"| {float(r['psnr']):.1f} | {float(r['ssim']):.2f} | {reid} "
             f"| {_pct(r['readability'])} | {_pct(r.get('psnr_drop'), True)} | {_pct(r.get('ssim_drop'), True)} "
             f"| {_pct(r.get('reid_change'), True)} | {_pct(r.get('acc_change'), True)} |"

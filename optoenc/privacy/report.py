@@ -29,7 +29,7 @@ from ..training.rundir import RUN_FILES, atomic_write_text
 
 __all__ = [
     "COLUMNS", "load_run", "run_rows", "sweep_cells", "write_table", "read_table", "markdown", "best_per_threat_model",
-    "best_markdown",
+    "best_markdown", "document",
 ]  # fmt: skip
 
 #: Table columns, in order (docs/results/privacy.csv). ``threat_model``: the attack's
@@ -108,7 +108,7 @@ def write_table(rows: Sequence[dict], csv_path: str | Path, md_path: str | Path 
     markdown table."""
     path = write_csv(rows, csv_path, columns)
     if md_path is not None:
-        atomic_write_text(md_path, _document(rows))
+        atomic_write_text(md_path, document(rows))
     return path
 
 
@@ -197,7 +197,7 @@ def best_markdown(rows: Sequence[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _document(rows: Sequence[dict]) -> str:
+def document(rows: Sequence[dict]) -> str:
     """privacy.md: the strongest attack per threat model, then every attack."""
     return ("## Strongest attack per threat model (highest re-identification)\n\n" + best_markdown(rows)
             + "\n## Every attack\n\n" + markdown(rows))

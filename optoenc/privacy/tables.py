@@ -14,7 +14,7 @@ from typing import Any, Sequence
 
 from ..training.rundir import atomic_write_text
 
-__all__ = ["write_csv", "rate_text", "acc_text", "given"]
+__all__ = ["csv_text", "write_csv", "rate_text", "acc_text", "given"]
 
 
 def _fmt(v: Any) -> str:
@@ -23,14 +23,19 @@ def _fmt(v: Any) -> str:
     return str(v)
 
 
-def write_csv(rows: Sequence[dict], path: str | Path, columns: Sequence[str]) -> Path:
-    """``rows`` as CSV with ``columns`` (missing values empty, floats to 6 significant digits), written atomically."""
+def csv_text(rows: Sequence[dict], columns: Sequence[str]) -> str:
+    """``rows`` as CSV text with ``columns`` (missing values empty, floats to 6 significant digits)."""
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=list(columns), extrasaction="ignore", lineterminator="\n")
     w.writeheader()
     for r in rows:
         w.writerow({k: _fmt(r.get(k, "")) for k in columns})
-    return atomic_write_text(path, buf.getvalue())
+    return buf.getvalue()
+
+
+def write_csv(rows: Sequence[dict], path: str | Path, columns: Sequence[str]) -> Path:
+    """:func:`csv_text` written atomically to ``path``."""
+    return atomic_write_text(path, csv_text(rows, columns))
 
 
 def given(v: Any) -> bool:
