@@ -149,7 +149,8 @@ class AttackStore:
 
     def save(self, name: str, rows: list[dict], examples: dict[str, torch.Tensor]) -> Path:
         buf = io.BytesIO()
-        torch.save({"token": self.token, "rows": rows, "examples": examples}, buf)
+        # clone: an example is a slice of all the probes' reconstructions, whose whole storage torch.save would keep
+        torch.save({"token": self.token, "rows": rows, "examples": {k: v.clone() for k, v in examples.items()}}, buf)
         return atomic_write_bytes(self._path(name), buf.getvalue())
 
 
