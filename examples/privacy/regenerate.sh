@@ -15,15 +15,18 @@ HERE="$(cd "$(dirname "$0")" && pwd)"
 export OMP_NUM_THREADS=1 MKL_NUM_THREADS=1
 mkdir -p "$W/budget"
 
-# 1. Every attack on Table 1's FCNN seed-0 cameras (20 cells), 1,000 probes; two sizes at a time.
+# 1. Every attack on Table 1's FCNN seed-0 cameras (20 cells), 1,000 probes: one camera a job, two jobs at a
+#    time, the slowest (largest embeddings) first; then one table of them all.
 A="--attacks admm,pinv,plaintext,learned,learned_conv --count 1000"
-run_sizes() {
-    optoenc privacy --sweep "$T1" --match "*embedding=$1,decoder=fcnn,seed=0" --out "$W/privacy/$1" $A > "$W/privacy-$1.log" 2>&1 &
-    optoenc privacy --sweep "$T1" --match "*embedding=$2,decoder=fcnn,seed=0" --out "$W/privacy/$2" $A > "$W/privacy-$2.log" 2>&1
-    wait
-}
-run_sizes 24x32 6x8
-run_sizes 12x16 3x4
+mkdir -p "$W/privacy/cells"
+for size in 24x32 12x16 6x8 3x4; do
+    for enc in lens coded_aperture diffuser fixed_slm learned_slm; do
+        cell="encoder=$enc,embedding=$size,decoder=fcnn,seed=0"
+        optoenc privacy --sweep "$T1" --match "$cell" --out "$W/privacy/cells/$cell" $A > "$W/privacy/cells/$cell.log" 2>&1 &
+        while [ "$(jobs -r | wc -l)" -ge 2 ]; do sleep 10; done
+    done
+done
+wait
 optoenc privacy --sweep "$T1" --match '*decoder=fcnn,seed=0' --out "$W/privacy/all" $A > "$W/privacy-all.log" 2>&1
 
 # 2. The budget study (pairs x maximum epochs) and a larger attacker, lens, fixed and learned LCD at 6x8, 24x32.
