@@ -15,6 +15,7 @@ Example::
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 from typing import Any, Callable, Optional, Sequence
 
 from ..errors import ConfigError
@@ -27,7 +28,7 @@ def budget_study(encoder, splits, pairs: Sequence[int] = (1000, 10000, 60000), e
                  attacks: Sequence[str] = ("learned", "learned_conv"), config: Optional[PrivacyConfig] = None,
                  learned_config: Optional[LearnedConfig] = None, cache_root: str | None = None,
                  progress: Callable[[str], None] | None = None, label: str = "",
-                 test_acc: float = float("nan")) -> list[dict[str, Any]]:
+                 test_acc: float = float("nan"), resume_dir: str | Path | None = None) -> list[dict[str, Any]]:
     """One row per attack, pair count and maximum epochs (the privacy table's columns,
     :data:`optoenc.privacy.report.COLUMNS`).
 
@@ -39,8 +40,10 @@ def budget_study(encoder, splits, pairs: Sequence[int] = (1000, 10000, 60000), e
         attacks: learned attacks (``learned``, ``learned_conv``, ``learned_one``).
         learned_config: the other attacker settings (its ``pairs`` and ``epochs`` are the grid's).
         label: the ``run`` column (e.g. the run directory's name); ``test_acc``: the encoder's accuracy, if known.
+        resume_dir: a folder keeping each finished grid point (:class:`~optoenc.privacy.evaluate.AttackStore`):
+            a study interrupted and started again with it measures only the points not yet kept.
     """
-    from .evaluate import learned_attack, target
+    from .evaluate import AttackStore, learned_attack, store_token, target
 
     for a in attacks:
         if a not in LEARNED:
@@ -53,13 +56,23 @@ def budget_study(encoder, splits, pairs: Sequence[int] = (1000, 10000, 60000), e
     train = splits.train[0]
     counts = sorted({min(int(p), len(train)) for p in pairs})
     a, b = encoder.geometry.embedding
+    token = store_token(tgt.y, tgt.config, base, label, test_acc)
+    store = None if resume_dir is None else AttackStore(resume_dir, token)
     rows = []
     for attack in attacks:
         for n in counts:
             for e in sorted({int(v) for v in epochs}):
+                key = f"{attack}-{n}-{e}"
+                kept = store.load(key) if store else None
+                if kept is not None:
+                    say(f"{attack}: {n} pairs, at most {e} epochs (kept from an earlier, interrupted study)")
+                    rows += kept[0]
+                    continue
                 say(f"{attack}: {n} pairs, at most {e} epochs")
                 recons, budget = learned_attack(tgt, attack, train, dataclasses.replace(base, pairs=n, epochs=e))
                 row = tgt.measure(attack, recons, **budget)
                 rows.append({"encoder": encoder.name, "embedding": f"{a}x{b}", "test_acc": test_acc, "run": label, **row})
+                if store:
+                    store.save(key, rows[-1:], {})
     return rows
 

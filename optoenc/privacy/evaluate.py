@@ -29,7 +29,7 @@ from .stats import wilson
 from .tikhonov import TikhonovConfig, pseudo_inverse
 
 __all__ = ["PrivacyConfig", "Result", "Target", "evaluate", "target", "learned_attack", "MULTI_PATTERN",
-           "AttackStore"]
+           "AttackStore", "store_token"]
 
 #: Attacks on a camera that shows several patterns -> the attack each equals on a single-pattern camera
 #: (where it is not run: its row would repeat that attack's).
@@ -154,7 +154,8 @@ class AttackStore:
         return atomic_write_bytes(self._path(name), buf.getvalue())
 
 
-def _store_token(y: torch.Tensor, *settings) -> str:
+def store_token(y: torch.Tensor, *settings) -> str:
+    """The :class:`AttackStore` key of a measurement: a digest of the probes' noisy embeddings ``y`` and ``settings``."""
     h = hashlib.sha256(y.detach().cpu().contiguous().numpy().tobytes())
     for s in settings:
         h.update(repr(s).encode())
@@ -256,7 +257,7 @@ def evaluate(
     xt = splits.train[0]
     measure("mean_scene", xt.double().mean(0, keepdim=True).expand_as(x))
     store = None if resume_dir is None else AttackStore(
-        resume_dir, _store_token(y, cfg, admm_config or ADMMConfig(), learned_config or LearnedConfig(),
+        resume_dir, store_token(y, cfg, admm_config or ADMMConfig(), learned_config or LearnedConfig(),
                                  linear_config or TikhonovConfig()))
     for name in attacks:
         if K == 1 and name in MULTI_PATTERN:

@@ -38,3 +38,33 @@ def test_budget_study_writes_one_row_per_grid_point(tmp_path, capsys):
         assert r["val_pairs"] == round(0.1 * r["n_pairs"])
         assert r["reid_ci_low"] <= r["reid_top1"] <= r["reid_ci_high"]
     assert "learned_conv  pairs    600  epochs" in capsys.readouterr().out
+
+
+@pytest.mark.usefixtures("one_thread")
+def test_an_interrupted_budget_study_resumes_at_its_grid_point(tmp_path, monkeypatch):
+    """Finished grid points are kept in OUT.partial/ and not trained again; the resumed CSV equals an
+    uninterrupted one (each grid point draws from its own seeded streams)."""
+    from optoenc.privacy import evaluate as ev
+
+    out = tmp_path / "budget.csv"
+    argv = ["--encoder", "lens", "--out", str(out), "--pairs", "100,200", "--epochs", "1", "--attacks", "learned",
+            "--seeds", "1", "--probes", "20", "--gallery", "10", "--hidden", "16", "sensor.embedding=[6,8]",
+            "fidelity.preset=fast", "dataset.train_size=600", "dataset.val_size=200", "dataset.test_size=300",
+            f"trainer.cache_dir={tmp_path / 'cache'}"]
+    real, calls = ev.learned_attack, []
+
+    def stop_at_second(*a, **k):
+        calls.append(k or a[3])
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(*a, **k)
+
+    monkeypatch.setattr(ev, "learned_attack", stop_at_second)
+    with pytest.raises(KeyboardInterrupt):
+        _script().main(argv)
+    assert [p.name for p in out.with_suffix(".partial").iterdir()] == ["learned-100-1.pt"] and not out.exists()
+    resumed = _script().main(argv)  # only the 200-pair point is trained: the third call
+    assert len(calls) == 3 and not out.with_suffix(".partial").exists()
+    monkeypatch.setattr(ev, "learned_attack", real)
+    fresh = _script().main(argv[:3] + [str(tmp_path / "fresh.csv")] + argv[4:])
+    assert resumed.read_text() == fresh.read_text() and len(read_table(fresh)) == 2
