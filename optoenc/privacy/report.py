@@ -29,7 +29,7 @@ from ..training.rundir import RUN_FILES, atomic_write_text
 
 __all__ = [
     "COLUMNS", "load_run", "run_rows", "sweep_cells", "write_table", "read_table", "markdown", "best_per_threat_model",
-    "best_markdown", "document",
+    "best_markdown", "document", "strength",
 ]  # fmt: skip
 
 #: Table columns, in order (docs/results/privacy.csv). ``threat_model``: the attack's
@@ -160,6 +160,11 @@ def markdown(rows: Sequence[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def strength(r: dict) -> tuple[float, float, float]:
+    """How strong an attack's row is, for ranking attacks: re-identification top-1, then readability, then PSNR."""
+    return tuple(float(r[k]) if given(r.get(k)) else -math.inf for k in ("reid_top1", "readability", "psnr"))
+
+
 def best_per_threat_model(rows: Sequence[dict]) -> list[dict[str, Any]]:
     """Per cell (encoder, embedding, run), the strongest attack under each threat model.
 
@@ -177,7 +182,7 @@ def best_per_threat_model(rows: Sequence[dict]) -> list[dict[str, Any]]:
         cell = (r["encoder"], r["embedding"], r.get("run", ""))
         if cell not in cells:
             cells.append(cell)
-        score = tuple(float(r[k]) if given(r.get(k)) else -math.inf for k in ("reid_top1", "readability", "psnr"))
+        score = strength(r)
         key = (*cell, threat)
         if key not in best or score > best[key][0]:
             best[key] = (score, {**r, "threat_model": threat})
