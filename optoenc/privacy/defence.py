@@ -15,7 +15,7 @@ change against the same attack on the baseline:
 the baseline's ``admm`` and ``learned``.
 
 Written by ``optoenc privacy --sweep DIR --defence`` to
-``DIR/privacy/defence.{csv,md}`` (docs/results/privacy_defence.csv).
+``DIR/privacy/defence.{csv,md}`` (docs/results/privacy/defence.csv through examples/privacy/make_privacy.py).
 """
 
 from __future__ import annotations
