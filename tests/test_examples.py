@@ -330,7 +330,7 @@ def test_make_privacy_derives_its_tables_from_the_committed_csvs_and_checks_them
     """make_privacy.py with no measurement folders derives every table from OUT's CSVs; --check exits 0 on them
     and 1 naming the file and line after a hand edit."""
     from optoenc.privacy import defence
-    from optoenc.privacy.report import COLUMNS, write_table
+    from optoenc.privacy.report import COLUMNS, read_table, write_table
 
     mod = _make_privacy()
     out = tmp_path / "results"
@@ -338,7 +338,9 @@ def test_make_privacy_derives_its_tables_from_the_committed_csvs_and_checks_them
             _best_row("learned_slm", "6x8", 0.95, 0.04)]
     for r in rows:
         r.update(psnr_std=1.0, ssim_std=0.1, readability=0.9, readability_ci_low=0.88, readability_ci_high=0.92, run="x")
-    write_table(rows, out / "privacy.csv")
+    # one table per camera, named as their run directories; privacy.csv joins them in Table 1's order
+    write_table(rows[2:], out / "privacy" / "cameras" / "a-learned.csv")
+    write_table(rows[:2], out / "privacy" / "cameras" / "b-lens.csv")
     budget = [_budget_row(p, e, 0.3) for p in (1000, 60000) for e in (5, 50)] + [_budget_row(60000, 50, 0.31, 1024, "larger")]
     write_table(budget, out / "privacy" / "budget.csv", columns=(*COLUMNS, "attacker"))
     defended = [{**rows[1], "patterns": k, "adversary_weight": 0.0, "seed": 0, "epochs": 5} for k in (1, 4)]
@@ -348,6 +350,7 @@ def test_make_privacy_derives_its_tables_from_the_committed_csvs_and_checks_them
                  "privacy_utility.png", "budget.png"):
         assert (out / "privacy" / name).stat().st_size > 0, name
     assert "| lens | 6x8 | 73.0 % | admm | 20.0 [17.6, 22.6] |" in (out / "privacy" / "headline.md").read_text()
+    assert [r["encoder"] for r in read_table(out / "privacy.csv")] == ["lens", "lens", "learned_slm"]
     assert mod.main(["--check", "--out", str(out)]) == 0
     md = out / "privacy" / "headline.md"
     md.write_text(md.read_text().replace("20.0 [17.6, 22.6]", "2.0 [17.6, 22.6]"))

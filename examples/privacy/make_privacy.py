@@ -8,14 +8,17 @@
 
 The measurements (copied in, the data the rest is derived from):
 
-* ``OUT/privacy.csv``: every attack on every camera, from ``--table``, the folder ``optoenc privacy --sweep CELLS
-  --match '*decoder=fcnn,seed=0' --out FOLDER`` wrote; with it the example reconstructions
-  (``privacy/<encoder>-<embedding>_<attack>.png``) from the run directories under ``--cells``;
+* ``OUT/privacy/cameras/<run>.csv``: every attack on one camera, its run directory's ``privacy/privacy.csv``
+  (``optoenc privacy --sweep CELLS --match '*decoder=fcnn,seed=0'`` writes them): the cameras named by
+  ``--table``'s ``privacy.csv`` (the folder that sweep's ``--out`` wrote), found under ``--cells``, or with
+  ``--cameras DIR`` every run directory of DIR that has one; with them the example reconstructions
+  (``privacy/<encoder>-<embedding>_<attack>.png``);
 * ``OUT/privacy/budget.csv``: every row of ``budget_study.py``'s CSVs in ``--budget`` (``budget_table.py``);
 * ``OUT/privacy/defence.csv``: from ``--defence``, the folder ``optoenc privacy --sweep DEFENCE_RUNS --defence``
   wrote.
 
-Derived from those CSVs alone (``--check`` compares these text tables): ``privacy/privacy.md`` (the strongest attack
+Derived from those CSVs alone (``--check`` compares these text tables): ``OUT/privacy.csv`` (every camera's
+attacks, encoders and embeddings in Table 1's order), ``privacy/privacy.md`` (the strongest attack
 per threat model, then every attack), ``privacy_best.csv``, ``headline.md`` (one line per encoder and embedding:
 accuracy and each threat model's strongest attack with its re-identification interval; then which cameras keep
 the strongest black-box re-identification within 2x chance at most 1 point below the best accuracy),
@@ -123,20 +126,33 @@ def question(best: list[dict], chance: float = CHANCE, factor: float = FACTOR, m
     return "\n".join(lines) + "\n"
 
 
+def _camera_order(path: Path) -> tuple:
+    rows = read_table(path)
+    enc, emb = (rows[0]["encoder"], rows[0]["embedding"]) if rows else ("", "")
+    rank = lambda seq, v: seq.index(v) if v in seq else len(seq)  # noqa: E731
+    return rank(ENCODERS, enc), rank(EMBEDDINGS, emb), path.name
+
+
+def cameras(out: Path) -> list[Path]:
+    """The committed per-camera tables, in Table 1's order (encoders, then embeddings from large to small)."""
+    return sorted((out / "privacy" / "cameras").glob("*.csv"), key=_camera_order)
+
+
 def derive(out: Path, chance: float = CHANCE) -> dict[Path, str]:
     """Every derived text table (path -> text) from the measurement CSVs under ``out`` that exist."""
     priv = out / "privacy"
     texts: dict[Path, str] = {}
-    if (out / "privacy.csv").is_file():
-        rows = read_table(out / "privacy.csv")
+    rows = [r for path in cameras(out) for r in read_table(path)]
+    if rows:
         best = best_per_threat_model(rows)
+        texts[out / "privacy.csv"] = csv_text(rows, COLUMNS)
         texts[priv / "privacy.md"] = document(rows)
         texts[priv / "privacy_best.csv"] = csv_text(best, COLUMNS)
         texts[priv / "headline.md"] = headline(best) + "\n" + question(best, chance)
     if (priv / "budget.csv").is_file():
-        bt, rows = _load("budget_table"), read_table(priv / "budget.csv")
-        texts[priv / "budget.md"] = bt.budget_markdown(rows)
-        texts[priv / "attacker_size.md"] = bt.size_markdown(bt.size_rows(rows))
+        bt, budget = _load("budget_table"), read_table(priv / "budget.csv")
+        texts[priv / "budget.md"] = bt.budget_markdown(budget)
+        texts[priv / "attacker_size.md"] = bt.size_markdown(bt.size_rows(budget))
     if (priv / "defence.csv").is_file():
         texts[priv / "defence.md"] = defence.markdown(read_table(priv / "defence.csv"))
     return texts
@@ -147,8 +163,8 @@ def figures(out: Path, chance: float = CHANCE) -> list[Path]:
     from optoenc.privacy.pictures import save_frontier, save_threat_frontiers
 
     priv, paths = out / "privacy", []
-    if (out / "privacy.csv").is_file():
-        rows = read_table(out / "privacy.csv")
+    rows = [r for path in cameras(out) for r in read_table(path)]
+    if rows:
         paths.append(save_threat_frontiers(priv / "privacy_utility.png", best_per_threat_model(rows), THREAT_MODELS,
                                            chance))
         for attack in ("learned", "admm"):
@@ -160,19 +176,28 @@ def figures(out: Path, chance: float = CHANCE) -> list[Path]:
 
 
 def collect(out: Path, table: Path | None = None, cells: Path | None = None, budget: Path | None = None,
-            defence_dir: Path | None = None) -> list[Path]:
+            defence_dir: Path | None = None, all_cameras: Path | None = None) -> list[Path]:
     """Copy the measurements in (the module docstring lists them); returns the files written."""
     priv = out / "privacy"
-    priv.mkdir(parents=True, exist_ok=True)
-    written = []
+    (priv / "cameras").mkdir(parents=True, exist_ok=True)
+    runs: dict[tuple, Path] = {}  # (encoder, embedding) -> run directory
     if table is not None:
-        written.append(Path(shutil.copyfile(table / "privacy.csv", out / "privacy.csv")))
-        runs = {(r["encoder"], r["embedding"]): r["run"] for r in read_table(table / "privacy.csv")}
-        for enc, emb, attack in EXAMPLES:
-            run = runs.get((enc, emb))
-            src = (cells or table.parent) / str(run) / "privacy" / f"recon_{attack}.png" if run else None
-            if src is not None and src.is_file():
-                written.append(Path(shutil.copyfile(src, priv / f"{enc}-{emb}_{attack}.png")))
+        for r in read_table(table / "privacy.csv"):
+            runs[(r["encoder"], r["embedding"])] = (cells or table.parent) / str(r["run"])
+    if all_cameras is not None:
+        for t in sorted(Path(all_cameras).glob("*/privacy/privacy.csv")):
+            first = read_table(t)[0]
+            runs[(first["encoder"], first["embedding"])] = t.parent.parent
+    written = []
+    for run in runs.values():
+        src = run / "privacy" / "privacy.csv"
+        if not src.is_file():
+            raise SystemExit(f"make_privacy: {src}: missing (the camera's own table)")
+        written.append(Path(shutil.copyfile(src, priv / "cameras" / f"{run.name}.csv")))
+    for enc, emb, attack in EXAMPLES:
+        src = runs[(enc, emb)] / "privacy" / f"recon_{attack}.png" if (enc, emb) in runs else None
+        if src is not None and src.is_file():
+            written.append(Path(shutil.copyfile(src, priv / f"{enc}-{emb}_{attack}.png")))
     if budget is not None:
         bt = _load("budget_table")
         rows = bt.load(budget)
@@ -200,6 +225,8 @@ def main(argv=None) -> int:
     ap.add_argument("--table", type=Path, help="folder of `optoenc privacy --sweep ... --out` (privacy.csv)")
     ap.add_argument("--cells", type=Path, help="folder of the run directories the table's rows name (their "
                     "example reconstructions; default: the --table folder's parent)")
+    ap.add_argument("--cameras", type=Path, help="a folder of run directories: copy in every one that has "
+                    "privacy/privacy.csv")
     ap.add_argument("--budget", type=Path, help="folder of budget_study.py CSVs")
     ap.add_argument("--defence", type=Path, help="folder of `optoenc privacy --sweep ... --defence` (defence.csv)")
     ap.add_argument("--out", type=Path, default=RESULTS, help="docs/results (default)")
@@ -215,7 +242,7 @@ def main(argv=None) -> int:
     if args.table is not None and not (args.table / "privacy.csv").is_file():
         print(f"make_privacy: --table {args.table}: no privacy.csv (run optoenc privacy --sweep first)", file=sys.stderr)
         return 2
-    files = collect(args.out, args.table, args.cells, args.budget, args.defence)
+    files = collect(args.out, args.table, args.cells, args.budget, args.defence, args.cameras)
     files += [atomic_write_text(path, text) for path, text in derive(args.out).items()]
     files += figures(args.out)
     print(f"{len(files)} files -> {args.out}")
