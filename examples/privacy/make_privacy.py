@@ -35,7 +35,8 @@ import sys
 from pathlib import Path
 
 from optoenc.privacy import defence
-from optoenc.privacy.report import COLUMNS, best_per_threat_model, document, read_table, strength, write_table
+from optoenc.privacy.report import (COLUMNS, best_per_threat_model, document, read_table, save_frontiers, strength,
+                                    write_table)
 from optoenc.privacy.settings import THREAT_MODELS, PrivacyConfig
 from optoenc.privacy.tables import acc_text, csv_text, given, rate_text
 from optoenc.training.rundir import atomic_write_text
@@ -45,8 +46,6 @@ RESULTS = HERE.parent.parent / "docs" / "results"
 #: Example reconstructions shown in docs/privacy.md: (encoder, embedding, attack).
 EXAMPLES = (("fixed_slm", "24x32", "admm"), ("learned_slm", "6x8", "admm"), ("learned_slm", "6x8", "learned_conv"),
             ("lens", "24x32", "pinv"), ("lens", "6x8", "learned_conv"), ("learned_slm", "24x32", "learned_conv"))
-ENCODERS = ("lens", "coded_aperture", "diffuser", "fixed_slm", "learned_slm")
-EMBEDDINGS = ("24x32", "12x16", "6x8", "3x4")
 #: The question of docs/privacy.md: which cameras keep the strongest black-box re-identification within
 #: FACTOR x chance while losing at most MARGIN (accuracy, fraction) against the most accurate camera.
 FACTOR, MARGIN = 2, 0.01
@@ -61,6 +60,11 @@ def _load(name: str):
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
+
+
+#: Table 1's encoders and embeddings, in its order (examples/paper/make_results.py).
+_RESULTS = _load("make_results")
+ENCODERS, EMBEDDINGS = _RESULTS.ENCODERS, _RESULTS.EMBEDDINGS
 
 
 def _attack(r: dict) -> str:
@@ -160,16 +164,9 @@ def derive(out: Path, chance: float = CHANCE) -> dict[Path, str]:
 
 def figures(out: Path, chance: float = CHANCE) -> list[Path]:
     """The privacy-utility figures and the budget figure from the committed CSVs."""
-    from optoenc.privacy.pictures import save_frontier, save_threat_frontiers
-
-    priv, paths = out / "privacy", []
+    priv = out / "privacy"
     rows = [r for path in cameras(out) for r in read_table(path)]
-    if rows:
-        paths.append(save_threat_frontiers(priv / "privacy_utility.png", best_per_threat_model(rows), THREAT_MODELS,
-                                           chance))
-        for attack in ("learned", "admm"):
-            if any(r["attack"] == attack for r in rows):
-                paths.append(save_frontier(priv / f"privacy_utility_{attack}.png", rows, attack, chance))
+    paths = save_frontiers(rows, priv, chance) if rows else []
     if (priv / "budget.csv").is_file():
         paths.append(_load("budget_table").figure(read_table(priv / "budget.csv"), priv / "budget.png"))
     return [p for p in paths if p is not None]
@@ -212,9 +209,8 @@ def collect(out: Path, table: Path | None = None, cells: Path | None = None, bud
 def check(out: Path) -> str | None:
     """The first difference between the committed derived tables and what :func:`derive` gives; None where they
     agree."""
-    first_difference = _load("make_results").first_difference
     for path, text in derive(out).items():
-        diff = first_difference(path, text, "make_privacy.py")
+        diff = _RESULTS.first_difference(path, text, "make_privacy.py")
         if diff:
             return diff
     return None

@@ -14,7 +14,7 @@ from pathlib import Path
 from ..errors import ConfigError, DataError
 from ..privacy.settings import ATTACKS, METHODS, ADMMConfig, LearnedConfig, PrivacyConfig, TikhonovConfig
 from ..settings import parse_hw
-from ..training.rundir import atomic_write_bytes, write_json
+from ..training.rundir import atomic_torch_save, atomic_write_bytes, write_json
 from .args import command, compose, names, split_overrides
 
 __all__ = ["add_parsers"]
@@ -193,9 +193,7 @@ def reconstruct(args: argparse.Namespace, extra) -> int:
     pic = save_rows(out / "reconstruction.png", rows, titles, f"{enc.name}, embedding {a}x{b}")
     _npy(out / "scenes.npy", scenes)
     _npy(out / "embeddings.npy", emb)
-    buf = io.BytesIO()
-    torch.save({k: v.float() for k, v in arrays.items()}, buf)
-    atomic_write_bytes(out / "reconstructions.pt", buf.getvalue())
+    atomic_torch_save(out / "reconstructions.pt", {k: v.float() for k, v in arrays.items()})
     write_json(out / "reconstruct.json", {"encoder": enc.name, "embedding": [a, b], "noise": not args.no_noise,
                                           "admm": vars(_admm_config(args)), "metrics_mean_std": report})
     for m, r in report.items():

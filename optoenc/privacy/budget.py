@@ -56,8 +56,8 @@ def budget_study(encoder, splits, pairs: Sequence[int] = (1000, 10000, 60000), e
     train = splits.train[0]
     counts = sorted({min(int(p), len(train)) for p in pairs})
     a, b = encoder.geometry.embedding
-    token = store_token(tgt.y, tgt.config, base, label, test_acc)
-    store = None if resume_dir is None else AttackStore(resume_dir, token)
+    store = None if resume_dir is None else AttackStore(resume_dir, store_token(tgt.y, train, tgt.config, base, label,
+                                                                                 test_acc))
     rows = []
     for attack in attacks:
         for n in counts:

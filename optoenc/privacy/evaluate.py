@@ -10,7 +10,6 @@ Example::
 from __future__ import annotations
 
 import hashlib
-import io
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Optional
@@ -18,7 +17,7 @@ from typing import Any, Callable, Optional
 import torch
 
 from ..errors import ConfigError
-from ..training.rundir import atomic_write_bytes
+from ..training.rundir import atomic_torch_save
 from .settings import PrivacyConfig
 from . import metrics
 from .admm import ADMMConfig, admm
@@ -126,9 +125,9 @@ class AttackStore:
     """Each finished attack's rows and example reconstructions, kept in a folder so that an interrupted measurement
     resumes at the attack it was in (one ``<attack>.pt`` per attack, written atomically).
 
-    A stored attack is reused only when its ``token`` (a digest of the probes' embeddings, hence of the encoder, the
-    noise seed and the probes, and of every setting of the measurement) equals the current one; any other file is
-    measured again and replaced.
+    A stored attack is reused only when its ``token`` (:func:`store_token`: the probes' embeddings, hence the
+    encoder, the noise seed and the probes; the attackers' training scenes; every setting) equals the current one;
+    any other file is measured again and replaced.
     """
 
     def __init__(self, folder: str | Path, token: str):
@@ -148,17 +147,17 @@ class AttackStore:
         return saved["rows"], saved["examples"]
 
     def save(self, name: str, rows: list[dict], examples: dict[str, torch.Tensor]) -> Path:
-        buf = io.BytesIO()
         # clone: an example is a slice of all the probes' reconstructions, whose whole storage torch.save would keep
-        torch.save({"token": self.token, "rows": rows, "examples": {k: v.clone() for k, v in examples.items()}}, buf)
-        return atomic_write_bytes(self._path(name), buf.getvalue())
+        examples = {k: v.clone() for k, v in examples.items()}
+        return atomic_torch_save(self._path(name), {"token": self.token, "rows": rows, "examples": examples})
 
 
-def store_token(y: torch.Tensor, *settings) -> str:
-    """The :class:`AttackStore` key of a measurement: a digest of the probes' noisy embeddings ``y`` and ``settings``."""
-    h = hashlib.sha256(y.detach().cpu().contiguous().numpy().tobytes())
-    for s in settings:
-        h.update(repr(s).encode())
+def store_token(*parts) -> str:
+    """The :class:`AttackStore` key of a measurement: a digest of its ``parts``, tensors by their bytes (the probes'
+    noisy embeddings, the attackers' training scenes), anything else by its ``repr`` (the settings)."""
+    h = hashlib.sha256()
+    for p in parts:
+        h.update(p.detach().cpu().contiguous().numpy().tobytes() if isinstance(p, torch.Tensor) else repr(p).encode())
     return h.hexdigest()
 
 
@@ -256,8 +255,9 @@ def evaluate(
 
     xt = splits.train[0]
     measure("mean_scene", xt.double().mean(0, keepdim=True).expand_as(x))
+    # The key: the probes' embeddings (encoder, noise seed, probes), the attackers' training scenes, every setting.
     store = None if resume_dir is None else AttackStore(
-        resume_dir, store_token(y, cfg, admm_config or ADMMConfig(), learned_config or LearnedConfig(),
+        resume_dir, store_token(y, xt, cfg, admm_config or ADMMConfig(), learned_config or LearnedConfig(),
                                  linear_config or TikhonovConfig()))
     for name in attacks:
         if K == 1 and name in MULTI_PATTERN:

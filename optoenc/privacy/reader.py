@@ -8,14 +8,13 @@ content digest, the architecture version, the seed and the epochs.
 from __future__ import annotations
 
 import hashlib
-import io
 from pathlib import Path
 
 import torch
 from torch import nn
 
 from ..training.cache import cache_dir
-from ..training.rundir import atomic_write_bytes
+from ..training.rundir import atomic_torch_save
 
 __all__ = ["Reader", "reader", "READER_EPOCHS"]
 
@@ -72,7 +71,5 @@ def reader(splits, root: str | None = None, seed: int = 0, epochs: int = READER_
             pass
     model = _train(x, y, splits.num_classes, seed, epochs)
     if cache:
-        buf = io.BytesIO()
-        torch.save(model.state_dict(), buf)
-        atomic_write_bytes(path, buf.getvalue())
+        atomic_torch_save(path, model.state_dict())
     return model

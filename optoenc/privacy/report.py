@@ -29,7 +29,7 @@ from ..training.rundir import RUN_FILES, atomic_write_text
 
 __all__ = [
     "COLUMNS", "load_run", "run_rows", "sweep_cells", "write_table", "read_table", "markdown", "best_per_threat_model",
-    "best_markdown", "document", "strength",
+    "best_markdown", "document", "strength", "save_frontiers",
 ]  # fmt: skip
 
 #: Table columns, in order (docs/results/privacy.csv). ``threat_model``: the attack's
@@ -254,12 +254,19 @@ def write_sweep(rows: Sequence[dict], out_dir: Path, chance: float) -> list[Path
     """The combined table (``privacy.csv``, ``privacy.md``), the strongest attack per cell and threat model
     (``privacy_best.csv``) and the privacy-utility plots of a sweep: one panel per threat model with its
     strongest attack (``privacy_utility.png``), and the learned and ADMM attackers' own."""
-    from .pictures import save_frontier, save_threat_frontiers
-
     out_dir = Path(out_dir)
     best = best_per_threat_model(rows)
-    paths = [write_table(rows, out_dir / "privacy.csv", out_dir / "privacy.md"), out_dir / "privacy.md",
-             write_table(best, out_dir / "privacy_best.csv")]
+    return [write_table(rows, out_dir / "privacy.csv", out_dir / "privacy.md"), out_dir / "privacy.md",
+            write_table(best, out_dir / "privacy_best.csv"), *save_frontiers(rows, out_dir, chance)]
+
+
+def save_frontiers(rows: Sequence[dict], out_dir: str | Path, chance: float) -> list[Path]:
+    """The privacy-utility plots of a table's rows: one panel per threat model with its strongest attack
+    (``privacy_utility.png``), and the learned and ADMM attackers' own (``privacy_utility_<attack>.png``)."""
+    from .pictures import save_frontier, save_threat_frontiers
+
+    out_dir, paths = Path(out_dir), []
+    best = best_per_threat_model(rows)
     if best:
         paths.append(save_threat_frontiers(out_dir / "privacy_utility.png", best, THREAT_MODELS, chance))
     for attack in ("learned", "admm"):

@@ -11,7 +11,7 @@ from typing import Any
 
 from ..errors import ConfigError, DataError
 
-__all__ = ["atomic_write_bytes", "atomic_write_text", "write_json", "new_run_dir", "remove_if_empty", "RUN_FILES"]
+__all__ = ["atomic_write_bytes", "atomic_write_text", "atomic_torch_save", "write_json", "new_run_dir", "remove_if_empty", "RUN_FILES"]
 
 #: What a run directory holds.
 RUN_FILES = {
@@ -74,6 +74,17 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
 
 def atomic_write_text(path: str | Path, text: str) -> Path:
     return atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def atomic_torch_save(path: str | Path, obj: Any) -> Path:
+    """``torch.save(obj)`` to ``path`` atomically (:func:`atomic_write_bytes`)."""
+    import io
+
+    import torch
+
+    buf = io.BytesIO()
+    torch.save(obj, buf)
+    return atomic_write_bytes(path, buf.getvalue())
 
 
 def write_json(path: str | Path, obj: Any) -> Path:

@@ -135,7 +135,8 @@ def test_privacy_sweep_table_and_plot(tmp_path, capsys):
 
 def test_an_interrupted_measurement_resumes_at_the_attack_it_was_in(tmp_path, monkeypatch, one_thread):
     """Finished attacks are kept in privacy/partial/ and not run again; the resumed table equals an uninterrupted
-    one (every attack draws from its own seeded streams); a kept attack of other settings is measured again."""
+    one (every attack draws from its own seeded streams); a kept attack of other settings or other training scenes
+    is measured again."""
     from optoenc.cli.main import build_parser
     from optoenc.cli.privacy import _evaluate_kw
     from optoenc.privacy import evaluate as ev
@@ -161,6 +162,8 @@ def test_an_interrupted_measurement_resumes_at_the_attack_it_was_in(tmp_path, mo
         m.setattr(ev, "admm", stop)  # admm and plaintext (whose inversion is ADMM) must come from the store
         with pytest.raises(KeyboardInterrupt):  # ... but not when the settings differ: 30 ADMM iterations
             measure_run(run, kw("--iterations", "30"))
+        with pytest.raises(KeyboardInterrupt):  # ... nor when the attackers' training scenes differ (same probes)
+            measure_run(run, kw(), overrides=["dataset.train_size=500"])
         resumed = measure_run(run, kw())
     assert not partial.exists()
     fresh = measure_run(run, kw(), out=tmp_path / "fresh")
