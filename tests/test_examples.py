@@ -276,7 +276,19 @@ def test_budget_table_says_where_an_attacker_levels_off(tmp_path):
     assert mod.levelled(flat) and not mod.levelled(rising)
     rows = [*flat.values(), _budget_row(60000, 50, 0.33, size=1024, attacker="larger")]
     (paired,) = mod.size_rows(rows)
-    assert (paired["size"], paired["size_larger"], paired["change_pts"]) == (256.0, 1024.0, "+2.0")
+    assert (paired["reference"], paired["size"], paired["size_larger"], paired["change_pts"]) == ("budget", 256.0, 1024.0, "+2.0")
+    # with the camera's table the larger attacker is set against the table's row for its attack (here 0.36, so
+    # -3.0 points) and against the table's strongest black-box attack (learned_conv 0.40: -7.0 points); a larger
+    # attacker on a camera with no budget grid (coded aperture) still gets its table row
+    table = [{**_budget_row(55000, 50, 0.36), "threat_model": "black_box"},
+             {**_budget_row(55000, 50, 0.40), "attack": "learned_conv", "attacker_size": 32.0, "threat_model": "black_box"},
+             {**_budget_row(55000, 50, 0.90), "attack": "admm", "threat_model": "known_mask"},
+             {**_budget_row(55000, 50, 0.20), "encoder": "coded_aperture", "threat_model": "black_box"}]
+    coded = {**_budget_row(60000, 50, 0.21, size=1024, attacker="larger"), "encoder": "coded_aperture"}
+    paired, other = mod.size_rows([*rows, coded], table)
+    assert (paired["reference"], paired["change_pts"], paired["over_best_pts"]) == ("table", "-3.0", "-7.0")
+    assert paired["best"].startswith("learned_conv 40.0")
+    assert (other["encoder"], other["change_pts"], other["over_best_pts"]) == ("coded_aperture", "+1.0", "+1.0")
     assert "levelled off at 60000 pairs" in mod.budget_markdown(rows)
 
 

@@ -12,8 +12,9 @@ attackers' (``...-larger.csv``: budget_study.py with ``--hidden 1024 --channels 
   pairs (rows) x maximum epochs (columns), and whether it has levelled off: the largest budget's rate lies
   inside the interval of the next smaller pair count at the same epochs, and of the next smaller epoch budget at
   the same pairs;
-* ``attacker_size.md``: the default attacker against the larger one at the same pairs and epochs, the
-  difference in points;
+* ``attacker_size.md``: each larger attacker against the camera's privacy-table row for the same attack (with
+  ``--table``; else the default attacker at the same pairs and epochs) and the table's strongest black-box attack,
+  the differences in points;
 * ``budget.png``: re-identification against pairs, one line per maximum epochs, one panel per cell and attack.
 """
 
@@ -92,28 +93,41 @@ def budget_markdown(rows: list[dict]) -> str:
     return "\n".join(out)
 
 
-def size_rows(rows: list[dict]) -> list[dict]:
-    """The default attacker beside the larger one at the same cell, attack, pairs and epochs."""
-    big = {(r["encoder"], r["embedding"], r["attack"], r["n_pairs"], r["max_epochs"]): r for r in rows
-           if r["attacker"] == "larger"}
+def size_rows(rows: list[dict], table: list[dict] | None = None) -> list[dict]:
+    """Each larger attacker beside its reference: the camera's privacy-table row for the same attack (``table``:
+    the cameras' rows, 3 seeds averaged) where given, else the default attacker of the budget study at the same
+    pairs and epochs; and beside the table's strongest black-box attack on that camera."""
+    default = {(r["encoder"], r["embedding"], r["attack"], r["n_pairs"], r["max_epochs"]): r for r in rows
+               if r["attacker"] == "default"}
+    table = table or []
     out = []
-    for r in rows:
-        key = (r["encoder"], r["embedding"], r["attack"], r["n_pairs"], r["max_epochs"])
-        if r["attacker"] != "default" or key not in big:
+    for b in (r for r in rows if r["attacker"] == "larger"):
+        cam = (b["encoder"], b["embedding"])
+        own = [t for t in table if (t["encoder"], t["embedding"]) == cam]
+        ref = next((t for t in own if t["attack"] == b["attack"]), None)
+        source = "table"
+        if ref is None:
+            ref, source = default.get((*cam, b["attack"], b["n_pairs"], b["max_epochs"])), "budget"
+        if ref is None:
             continue
-        b = big[key]
-        out.append({"encoder": key[0], "embedding": key[1], "attack": key[2], "n_pairs": key[3], "max_epochs": key[4],
-                    "size": r["attacker_size"], "reid": rate_text(r), "size_larger": b["attacker_size"], "reid_larger": rate_text(b),
-                    "change_pts": f"{100 * (b['reid_top1'] - r['reid_top1']):+.1f}",
-                    "val_loss": f"{r['val_loss']:.4f}", "val_loss_larger": f"{b['val_loss']:.4f}"})
+        bb = [t for t in own if t["threat_model"] == "black_box"]
+        best = max(bb, key=lambda t: t["reid_top1"]) if bb else None
+        out.append({"encoder": cam[0], "embedding": cam[1], "attack": b["attack"], "reference": source,
+                    "n_pairs": b["n_pairs"], "max_epochs": b["max_epochs"],
+                    "size": ref["attacker_size"], "reid": rate_text(ref), "size_larger": b["attacker_size"],
+                    "reid_larger": rate_text(b), "change_pts": f"{100 * (b['reid_top1'] - ref['reid_top1']):+.1f}",
+                    "best": "-" if best is None else f"{best['attack']} {rate_text(best)}",
+                    "over_best_pts": "-" if best is None else f"{100 * (b['reid_top1'] - best['reid_top1']):+.1f}",
+                    "val_loss": f"{ref['val_loss']:.4f}", "val_loss_larger": f"{b['val_loss']:.4f}"})
     return out
 
 
 def size_markdown(rows: list[dict]) -> str:
-    cols = ("encoder", "embedding", "attack", "n_pairs", "max_epochs", "size", "reid", "size_larger", "reid_larger",
-            "change_pts", "val_loss", "val_loss_larger")
-    heads = ("encoder", "embedding", "attack", "pairs", "max epochs", "size", "re-id [%]", "larger size", "larger re-id [%]",
-             "change [pts]", "val loss", "larger val loss")
+    cols = ("encoder", "embedding", "attack", "reference", "n_pairs", "max_epochs", "size", "reid", "size_larger",
+            "reid_larger", "change_pts", "best", "over_best_pts", "val_loss", "val_loss_larger")
+    heads = ("encoder", "embedding", "attack", "reference", "pairs", "max epochs", "size", "re-id [%]", "larger size",
+             "larger re-id [%]", "change [pts]", "table's best black-box [%]", "larger - best [pts]", "val loss",
+             "larger val loss")
     lines = ["| " + " | ".join(heads) + " |", "|" + "---|" * len(heads)]
     lines += ["| " + " | ".join(_n(r[c]) for c in cols) + " |" for r in rows]
     return "\n".join(lines) + "\n"
@@ -154,6 +168,8 @@ def main(argv=None) -> int:
     ap.add_argument("folder", type=Path, help="folder of budget_study.py CSVs")
     ap.add_argument("--out", type=Path, required=True, help="folder to write budget.csv, budget.md, "
                     "attacker_size.md and budget.png into")
+    ap.add_argument("--table", type=Path, help="the cameras' privacy.csv (optoenc privacy's table): compare the larger "
+                    "attackers with its rows rather than with the budget study's default attacker")
     args = ap.parse_args(argv)
     rows = load(args.folder)
     if not rows:
@@ -162,7 +178,7 @@ def main(argv=None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     write_table(rows, args.out / "budget.csv", columns=BUDGET_COLUMNS)
     atomic_write_text(args.out / "budget.md", budget_markdown(rows))
-    atomic_write_text(args.out / "attacker_size.md", size_markdown(size_rows(rows)))
+    atomic_write_text(args.out / "attacker_size.md", size_markdown(size_rows(rows, read_table(args.table) if args.table else None)))
     figure(rows, args.out / "budget.png")
     print(f"{len(rows)} rows -> {args.out}")
     return 0

@@ -156,7 +156,7 @@ def derive(out: Path, chance: float = CHANCE) -> dict[Path, str]:
     if (priv / "budget.csv").is_file():
         bt, budget = _load("budget_table"), read_table(priv / "budget.csv")
         texts[priv / "budget.md"] = bt.budget_markdown(budget)
-        texts[priv / "attacker_size.md"] = bt.size_markdown(bt.size_rows(budget))
+        texts[priv / "attacker_size.md"] = bt.size_markdown(bt.size_rows(budget, rows))
     if (priv / "defence.csv").is_file():
         texts[priv / "defence.md"] = defence.markdown(read_table(priv / "defence.csv"))
     return texts
