@@ -336,6 +336,11 @@ def test_privacy_question_names_the_cameras_within_a_point_and_twice_chance():
     best[1]["reid_top1"] = 0.03  # now above 2x chance: none qualifies, and the most accurate private camera is named
     text = mod.question(best, chance=0.01)
     assert "Cameras that meet both: none." in text and "chance: lens 3x4, 60.0 % (38.0 points below the best" in text
+    # the black-box attacker holds pairs, so a stronger plaintext row on the same camera is his too: lens 3x4
+    # is no longer within 2x chance
+    best.append({**_best_row("lens", "3x4", 0.60, 0.04, threat="plaintext", attack="plaintext"), "n_pairs": 1000.0})
+    text = mod.question(best, chance=0.01)
+    assert "No camera keeps the strongest black-box re-identification within 2x chance." in text
 
 
 def test_make_privacy_derives_its_tables_from_the_committed_csvs_and_checks_them(tmp_path, capsys):

@@ -49,6 +49,8 @@ EXAMPLES = (("fixed_slm", "24x32", "admm"), ("learned_slm", "6x8", "admm"), ("le
 #: The question of docs/privacy.md: which cameras keep the strongest black-box re-identification within
 #: FACTOR x chance while losing at most MARGIN (accuracy, fraction) against the most accurate camera.
 FACTOR, MARGIN = 2, 0.01
+#: The threat models open to the black-box attacker: his public scenes and their embeddings are pairs.
+BLACK_BOX = ("black_box", "plaintext")
 #: Re-identification chance: one in the gallery (the measurements' default gallery).
 CHANCE = 1.0 / PrivacyConfig().gallery
 
@@ -100,8 +102,17 @@ def headline(best: list[dict]) -> str:
 
 def question(best: list[dict], chance: float = CHANCE, factor: float = FACTOR, margin: float = MARGIN) -> str:
     """Which cameras keep the strongest black-box re-identification within ``factor`` x chance at most ``margin``
-    below the best test accuracy; and the most accurate camera that keeps it there at all."""
-    bb = [r for r in best if r["threat_model"] == "black_box" and given(r.get("test_acc"))]
+    below the best test accuracy; and the most accurate camera that keeps it there at all.
+
+    The black-box attacker holds (public scene, embedding) pairs, as many as the plaintext attacker and more, so
+    the plaintext attack is one of his: per camera the stronger of the two threat models' best rows counts."""
+    cams: dict[tuple, dict] = {}
+    for r in best:
+        if r["threat_model"] in BLACK_BOX and given(r.get("test_acc")):
+            key = (r["encoder"], r["embedding"], r.get("run"))
+            if key not in cams or strength(r) > strength(cams[key]):
+                cams[key] = r
+    bb = list(cams.values())
     if not bb:
         return ""
     top = max(bb, key=lambda r: float(r["test_acc"]))
@@ -110,7 +121,8 @@ def question(best: list[dict], chance: float = CHANCE, factor: float = FACTOR, m
     name = lambda r: f"{r['encoder']} {r['embedding']}"  # noqa: E731
     near = sorted((r for r in bb if float(r["test_acc"]) >= acc - margin - 1e-12), key=lambda r: -float(r["test_acc"]))
     lines = [f"**Within {100 * margin:g} point of the best accuracy** ({name(top)}, {acc_text(top)}), the strongest "
-             f"black-box attack against {factor:g}x chance ({100 * limit:g} %):", "",
+             f"black-box attack (the plaintext attack included: the black-box attacker holds pairs too) against "
+             f"{factor:g}x chance ({100 * limit:g} %):", "",
              "| encoder | embedding | test acc | below the best [pts] | black-box attack | re-id [%] (95 % CI) "
              "| within 2x chance |", "|---|---|---|---|---|---|---|"]
     for r in near:
