@@ -48,3 +48,13 @@ def test_example_embeddings_are_kept_for_the_figure_cells_only():
     for p in finished:
         kept = (p.path / "pictures" / "measurements.png").is_file()
         assert kept == mr._shows_embeddings(p.run), p.cell.name
+
+
+def test_committed_privacy_tables_are_regenerable():
+    """`make_privacy.py --check` on the committed tree: privacy.csv, headline.md and the other derived privacy
+    tables equal what the committed per-camera measurements give."""
+    spec = importlib.util.spec_from_file_location("make_privacy", ROOT / "examples" / "privacy" / "make_privacy.py")
+    mp = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mp)
+    assert list(mp.cameras(RESULTS)), "docs/results/privacy/cameras holds no measurements"
+    assert mp.check(RESULTS) is None

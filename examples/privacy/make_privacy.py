@@ -105,12 +105,14 @@ def question(best: list[dict], chance: float = CHANCE, factor: float = FACTOR, m
     below the best test accuracy; and the most accurate camera that keeps it there at all.
 
     The black-box attacker holds (public scene, embedding) pairs, as many as the plaintext attacker and more, so
-    the plaintext attack is one of his: per camera the stronger of the two threat models' best rows counts."""
+    the plaintext attack is one of his: per camera the one of the two threat models' best rows with the higher
+    re-identification counts (the black-box row on a tie)."""
+    rank = lambda r: (float(r["reid_top1"]), r["threat_model"] == "black_box")  # noqa: E731 (a tie: his own)
     cams: dict[tuple, dict] = {}
     for r in best:
         if r["threat_model"] in BLACK_BOX and given(r.get("test_acc")):
             key = (r["encoder"], r["embedding"], r.get("run"))
-            if key not in cams or strength(r) > strength(cams[key]):
+            if key not in cams or rank(r) > rank(cams[key]):
                 cams[key] = r
     bb = list(cams.values())
     if not bb:
