@@ -24,7 +24,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from optoenc.privacy.report import COLUMNS, read_table, write_table
+from optoenc.privacy.report import COLUMNS, read_table, strength, write_table
 from optoenc.privacy.tables import acc_text, rate_text
 from optoenc.training.rundir import atomic_write_text
 
@@ -111,7 +111,7 @@ def size_rows(rows: list[dict], table: list[dict] | None = None) -> list[dict]:
         if ref is None:
             continue
         bb = [t for t in own if t["threat_model"] == "black_box"]
-        best = max(bb, key=lambda t: t["reid_top1"]) if bb else None
+        best = max(bb, key=strength) if bb else None  # ranked as the privacy tables rank attacks
         out.append({"encoder": cam[0], "embedding": cam[1], "attack": b["attack"], "reference": source,
                     "n_pairs": b["n_pairs"], "max_epochs": b["max_epochs"],
                     "size": ref["attacker_size"], "reid": rate_text(ref), "size_larger": b["attacker_size"],
