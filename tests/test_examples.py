@@ -266,8 +266,8 @@ def _budget_row(pairs, epochs, reid, size=256, attacker="default"):
 
 def test_budget_table_says_where_an_attacker_levels_off(tmp_path):
     """examples/privacy/budget_table.py: a grid whose largest budget is inside its neighbours' Wilson intervals
-    has levelled off, one still rising by 10 points has not; the larger attacker is paired with the default one at
-    the same grid point."""
+    has levelled off, one still rising by 10 points has not; a stronger attacker (larger, or trained longer) is paired
+    with the default one at the same grid point or with the camera's table row."""
     spec = importlib.util.spec_from_file_location("budget_table", EXAMPLES / "privacy" / "budget_table.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
@@ -276,7 +276,7 @@ def test_budget_table_says_where_an_attacker_levels_off(tmp_path):
     assert mod.levelled(flat) and not mod.levelled(rising)
     rows = [*flat.values(), _budget_row(60000, 50, 0.33, size=1024, attacker="larger")]
     (paired,) = mod.size_rows(rows)
-    assert (paired["reference"], paired["size"], paired["size_larger"], paired["change_pts"]) == ("budget", 256.0, 1024.0, "+2.0")
+    assert (paired["reference"], paired["size"], paired["size_stronger"], paired["change_pts"]) == ("budget", 256.0, 1024.0, "+2.0")
     # with the camera's table the larger attacker is set against the table's row for its attack (here 0.36, so
     # -3.0 points) and against the table's strongest black-box attack (learned_conv 0.40: -7.0 points); a larger
     # attacker on a camera with no budget grid (coded aperture) still gets its table row
@@ -290,6 +290,15 @@ def test_budget_table_says_where_an_attacker_levels_off(tmp_path):
     assert paired["best"].startswith("learned_conv 40.0")
     assert (other["encoder"], other["change_pts"], other["over_best_pts"]) == ("coded_aperture", "+1.0", "+1.0")
     assert "levelled off at 60000 pairs" in mod.budget_markdown(rows)
+    # the default attacker trained four times longer (-longer.csv) is a stronger attacker too: set against the same
+    # table row (0.36 -> 0.45: +9.0 points), and kept out of the budget grid (its epochs are no grid column)
+    for name, row in (("lens-6x8.csv", flat[(60000, 50)]), ("lens-6x8-longer.csv", _budget_row(60000, 200, 0.45))):
+        (tmp_path / name).write_text("reid_top1,n_pairs,max_epochs\n" f"{row['reid_top1']},60000,{int(row['max_epochs'])}\n")
+    assert sorted(r["attacker"] for r in mod.load(tmp_path)) == ["default", "longer"]
+    longer = {**_budget_row(60000, 200, 0.45), "attacker": "longer"}
+    (row,) = mod.size_rows([*flat.values(), longer], table[:2])
+    assert (row["attacker"], row["max_epochs"], row["change_pts"], row["over_best_pts"]) == ("longer", 200.0, "+9.0", "+5.0")
+    assert "200 epochs" not in mod.budget_markdown([*flat.values(), longer])
 
 
 def test_privacy_headline_has_one_line_per_cell_with_each_threat_models_strongest_attack():

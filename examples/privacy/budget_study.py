@@ -12,7 +12,8 @@ Re-identification has levelled off where a row with more pairs or more epochs st
 row before it. ``--hidden`` and ``--channels`` size the attackers (the MLP's hidden units, the convolutional
 decoder's first feature map): the check that the table's attacker is not too small is the same grid point with
 larger attackers (``--hidden 1024 --channels 128``: both four times wider, 6.8x and 5.4x the weights at 6x8)
-changing re-identification by less than 3 points. An interrupted study keeps its finished grid points in
+changing re-identification by less than 3 points; so is the same attacker with four times the maximum epochs
+(``--epochs 200``). An interrupted study keeps its finished grid points in
 ``OUT.partial/`` and resumes there (removed once the CSV is written).
 """
 

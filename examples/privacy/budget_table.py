@@ -1,20 +1,21 @@
 """Tables and a figure from budget_study.py's CSVs: where each learned attacker levels off, and whether a
-larger attacker re-identifies more.
+stronger attacker (four times wider, or trained four times longer) re-identifies more.
 
     python examples/privacy/budget_table.py DIR --out docs/results/privacy
 
-DIR holds the budget studies, one CSV per run (``<encoder>-<embedding>.csv``, any name), and the larger
-attackers' (``...-larger.csv``: budget_study.py with ``--hidden 1024 --channels 128``: both four times wider,
-6.8x and 5.4x the weights at 6x8). Writes into OUT:
+DIR holds the budget studies, one CSV per run (``<encoder>-<embedding>.csv``, any name), and the stronger
+attackers': ``...-larger.csv`` (budget_study.py with ``--hidden 1024 --channels 128``: both four times wider,
+6.8x and 5.4x the weights at 6x8) and ``...-longer.csv`` (the default attackers with four times the maximum
+epochs, ``--epochs 200``). Writes into OUT:
 
-* ``budget.csv``: every row of every study, with ``attacker`` = ``default`` or ``larger``;
+* ``budget.csv``: every row of every study, with ``attacker`` = ``default``, ``larger`` or ``longer``;
 * ``budget.md``: per cell and attack, re-identification top-1 [%] with its Wilson 95 % interval over the grid of
   pairs (rows) x maximum epochs (columns), and whether it has levelled off: the largest budget's rate lies
   inside the interval of the next smaller pair count at the same epochs, and of the next smaller epoch budget at
   the same pairs;
-* ``attacker_size.md``: each larger attacker against the camera's privacy-table row for the same attack (with
-  ``--table``; else the default attacker at the same pairs and epochs) and the table's strongest black-box attack,
-  the differences in points;
+* ``attacker_size.md``: each stronger (larger or longer-trained) attacker against the camera's privacy-table row
+  for the same attack (with ``--table``; else the default attacker at the same pairs and epochs) and the table's
+  strongest black-box attack, the differences in points;
 * ``budget.png``: re-identification against pairs, one line per maximum epochs, one panel per cell and attack.
 """
 
@@ -28,9 +29,9 @@ from optoenc.privacy.report import COLUMNS, read_table, strength, write_table
 from optoenc.privacy.tables import acc_text, rate_text
 from optoenc.training.rundir import atomic_write_text
 
-#: The larger attackers' files end with this (before ``.csv``).
-LARGER = "-larger"
-#: budget.csv's columns: the privacy table's and which attacker (``default`` or ``larger``).
+#: The stronger attackers' files end with these (before ``.csv``): four times wider, four times the epochs.
+STRONGER = {"-larger": "larger", "-longer": "longer"}
+#: budget.csv's columns: the privacy table's and which attacker (``default``, ``larger`` or ``longer``).
 BUDGET_COLUMNS = (*COLUMNS, "attacker")
 
 
@@ -40,11 +41,12 @@ def _n(v) -> str:
 
 
 def load(folder: Path) -> list[dict]:
-    """Every row of the folder's budget CSVs, tagged ``attacker`` = ``larger`` (files ending -larger.csv) or ``default``."""
+    """Every row of the folder's budget CSVs, tagged ``attacker`` = ``larger`` (files ending -larger.csv),
+    ``longer`` (-longer.csv) or ``default``."""
     rows = []
     for path in sorted(folder.glob("*.csv")):
-        size = "larger" if path.stem.endswith(LARGER) else "default"
-        rows += [{**r, "attacker": size} for r in read_table(path)]
+        kind = next((k for suffix, k in STRONGER.items() if path.stem.endswith(suffix)), "default")
+        rows += [{**r, "attacker": kind} for r in read_table(path)]
     return rows
 
 
@@ -94,14 +96,14 @@ def budget_markdown(rows: list[dict]) -> str:
 
 
 def size_rows(rows: list[dict], table: list[dict] | None = None) -> list[dict]:
-    """Each larger attacker beside its reference: the camera's privacy-table row for the same attack (``table``:
-    the cameras' rows, 3 seeds averaged) where given, else the default attacker of the budget study at the same
-    pairs and epochs; and beside the table's strongest black-box attack on that camera."""
+    """Each stronger attacker (``larger``, ``longer``) beside its reference: the camera's privacy-table row for the
+    same attack (``table``: the cameras' rows, 3 seeds averaged) where given, else the default attacker of the
+    budget study at the same pairs and epochs; and beside the table's strongest black-box attack on that camera."""
     default = {(r["encoder"], r["embedding"], r["attack"], r["n_pairs"], r["max_epochs"]): r for r in rows
                if r["attacker"] == "default"}
     table = table or []
     out = []
-    for b in (r for r in rows if r["attacker"] == "larger"):
+    for b in (r for r in rows if r["attacker"] != "default"):
         cam = (b["encoder"], b["embedding"])
         own = [t for t in table if (t["encoder"], t["embedding"]) == cam]
         ref = next((t for t in own if t["attack"] == b["attack"]), None)
@@ -112,22 +114,23 @@ def size_rows(rows: list[dict], table: list[dict] | None = None) -> list[dict]:
             continue
         bb = [t for t in own if t["threat_model"] == "black_box"]
         best = max(bb, key=strength) if bb else None  # ranked as the privacy tables rank attacks
-        out.append({"encoder": cam[0], "embedding": cam[1], "attack": b["attack"], "reference": source,
+        out.append({"encoder": cam[0], "embedding": cam[1], "attack": b["attack"], "attacker": b["attacker"],
+                    "reference": source,
                     "n_pairs": b["n_pairs"], "max_epochs": b["max_epochs"],
-                    "size": ref["attacker_size"], "reid": rate_text(ref), "size_larger": b["attacker_size"],
-                    "reid_larger": rate_text(b), "change_pts": f"{100 * (b['reid_top1'] - ref['reid_top1']):+.1f}",
+                    "size": ref["attacker_size"], "reid": rate_text(ref), "size_stronger": b["attacker_size"],
+                    "reid_stronger": rate_text(b), "change_pts": f"{100 * (b['reid_top1'] - ref['reid_top1']):+.1f}",
                     "best": "-" if best is None else f"{best['attack']} {rate_text(best)}",
                     "over_best_pts": "-" if best is None else f"{100 * (b['reid_top1'] - best['reid_top1']):+.1f}",
-                    "val_loss": f"{ref['val_loss']:.4f}", "val_loss_larger": f"{b['val_loss']:.4f}"})
+                    "val_loss": f"{ref['val_loss']:.4f}", "val_loss_stronger": f"{b['val_loss']:.4f}"})
     return out
 
 
 def size_markdown(rows: list[dict]) -> str:
-    cols = ("encoder", "embedding", "attack", "reference", "n_pairs", "max_epochs", "size", "reid", "size_larger",
-            "reid_larger", "change_pts", "best", "over_best_pts", "val_loss", "val_loss_larger")
-    heads = ("encoder", "embedding", "attack", "reference", "pairs", "max epochs", "size", "re-id [%]", "larger size",
-             "larger re-id [%]", "change [pts]", "table's best black-box [%]", "larger - best [pts]", "val loss",
-             "larger val loss")
+    cols = ("encoder", "embedding", "attack", "attacker", "reference", "n_pairs", "max_epochs", "size", "reid",
+            "size_stronger", "reid_stronger", "change_pts", "best", "over_best_pts", "val_loss", "val_loss_stronger")
+    heads = ("encoder", "embedding", "attack", "stronger attacker", "reference", "pairs", "max epochs", "size",
+             "re-id [%]", "its size", "its re-id [%]", "change [pts]", "table's best black-box [%]",
+             "it - best [pts]", "val loss", "its val loss")
     lines = ["| " + " | ".join(heads) + " |", "|" + "---|" * len(heads)]
     lines += ["| " + " | ".join(_n(r[c]) for c in cols) + " |" for r in rows]
     return "\n".join(lines) + "\n"
@@ -168,7 +171,7 @@ def main(argv=None) -> int:
     ap.add_argument("folder", type=Path, help="folder of budget_study.py CSVs")
     ap.add_argument("--out", type=Path, required=True, help="folder to write budget.csv, budget.md, "
                     "attacker_size.md and budget.png into")
-    ap.add_argument("--table", type=Path, help="the cameras' privacy.csv (optoenc privacy's table): compare the larger "
+    ap.add_argument("--table", type=Path, help="the cameras' privacy.csv (optoenc privacy's table): compare the stronger "
                     "attackers with its rows rather than with the budget study's default attacker")
     args = ap.parse_args(argv)
     rows = load(args.folder)

@@ -47,34 +47,41 @@ budget() {  # $1 file suffix, $2 the cameras (ENCODER-SIZE, space-separated), th
 budget "" "lens-6x8 fixed_slm-6x8 learned_slm-6x8 lens-24x32 fixed_slm-24x32 learned_slm-24x32" \
     --pairs 1000,10000,60000 --epochs 5,15,50
 
-# 3. The defences' runs: variable patterns and privacy-aware training, 5 epochs each (examples/privacy/defence.yaml).
+# 3. Stronger attackers at all pairs, one queue of two jobs: trained four times longer (at most 200 epochs, the
+#    same early stopping) and four times wider (MLP hidden 1024, convolutional decoder 128 channels, at most 50
+#    epochs), on the cameras whose table attack leaves room (the lens and LCD cameras at 24x32 are re-identified
+#    100 % by the table's attackers, which no attacker can exceed): the three at 6x8, and the coded aperture at
+#    24x32 (wider).
+stronger() {  # $1 larger or longer, $2 ENCODER-SIZE, then budget_study.py options
+    local kind="$1" enc="${2%-*}" size="${2##*-}" f="$W/budget/$2-$1.csv"; shift 2
+    [ -f "$f" ] || python "$HERE/budget_study.py" --run "$T1/encoder=$enc,embedding=$size,decoder=fcnn,seed=0" \
+        --out "$f" --attacks learned,learned_conv --seeds 1 --probes 1000 --pairs 60000 "$@" > "${f%.csv}.log" 2>&1
+}
+queue() { "$@" & while [ "$(jobs -r | wc -l)" -ge 2 ]; do sleep 10; done; }
+LONGER="--epochs 200"
+LARGER="--epochs 50 --hidden 1024 --channels 128"
+for camera in fixed_slm-6x8 learned_slm-6x8; do queue stronger longer "$camera" $LONGER; done
+for camera in fixed_slm-6x8 learned_slm-6x8; do queue stronger larger "$camera" $LARGER; done
+queue stronger longer lens-6x8 $LONGER
+queue stronger larger lens-6x8 $LARGER
+queue stronger larger coded_aperture-24x32 $LARGER
+wait
+
+# 4. The defences' runs: variable patterns and privacy-aware training, 5 epochs each (examples/privacy/defence.yaml).
 optoenc sweep "$HERE/defence.yaml" --out "$W/defence" --workers 2 --threads 1
 
-# 4. One queue, two jobs at a time, the longest first. Attackers four times wider (MLP hidden 1024, convolutional
-#    decoder 128 channels, all pairs, at most 50 epochs) on the cameras whose table attack leaves room (the lens
-#    and LCD cameras at 24x32 are re-identified 100 % by the table's attackers, which no attacker can exceed): the
-#    coded aperture at 24x32 and the three at 6x8. And the defences against the table's attackers, one run a job
-#    (one attacker seed: a defence run and its baseline share it); each run's table is kept in RUN_DIR/privacy.
+# 5. The defences against the table's attackers, one run a job, two at a time (one attacker seed: a defence run and
+#    its baseline share it; each run's table is kept in RUN_DIR/privacy); then the defence table from them.
 D="--count 1000 --attack-seeds 1 --attacks admm,admm_search,plaintext,learned,learned_one,learned_conv"
-larger() {  # $1 ENCODER-SIZE
-    local enc="${1%-*}" size="${1##*-}" f="$W/budget/$1-larger.csv"
-    [ -f "$f" ] || python "$HERE/budget_study.py" --run "$T1/encoder=$enc,embedding=$size,decoder=fcnn,seed=0" \
-        --out "$f" --attacks learned,learned_conv --seeds 1 --probes 1000 --pairs 60000 --epochs 50 \
-        --hidden 1024 --channels 128 > "${f%.csv}.log" 2>&1
-}
 defended() {  # $1 a run directory of the defence sweep
     local name; name="$(basename "$1")"
     optoenc privacy --sweep "$W/defence" --match "$(printf '%s' "$name" | sed 's/\[/[[]/g')" \
         --out "$W/defence/privacy-runs/$name" $D > "$W/defence/privacy-runs/$name.log" 2>&1
 }
-queue() { "$@" & while [ "$(jobs -r | wc -l)" -ge 2 ]; do sleep 10; done; }
 mkdir -p "$W/defence/privacy-runs"
-queue larger coded_aperture-24x32
-for run in "$W"/defence/cells/*24x32*/; do queue defended "$run"; done
-for camera in lens-6x8 fixed_slm-6x8 learned_slm-6x8; do queue larger "$camera"; done
-for run in "$W"/defence/cells/*6x8*/; do queue defended "$run"; done
+for run in "$W"/defence/cells/*24x32*/ "$W"/defence/cells/*6x8*/; do queue defended "$run"; done
 wait
-
-# 5. The defence table (every run's attacks are kept from step 4), then everything into docs/results.
 optoenc privacy --sweep "$W/defence" --defence $D > "$W/privacy-defence.log" 2>&1
+
+# 6. Into docs/results.
 python "$HERE/make_privacy.py" --table "$W/privacy/all" --cells "$T1" --budget "$W/budget" --defence "$W/defence/privacy"
