@@ -8,8 +8,8 @@ Settings after the options (``section.key=value``) change the run's configuratio
 for a quick check: ``dataset.train_size=600 dataset.val_size=200 dataset.test_size=300``. Each grid point trains
 the attacker afresh with early stopping on a validation part of its pairs; the CSV has the privacy table's
 columns (``n_pairs``, ``max_epochs``, ``epochs_run``, ``val_loss``, ``reid_top1`` with its Wilson interval, ...).
-Re-identification has levelled off where a row with more pairs or more epochs stays inside the interval of the
-row before it. ``--hidden`` and ``--channels`` size the attackers (the MLP's hidden units, the convolutional
+Re-identification has levelled off where a row with more pairs or more epochs re-identifies less than 3 points
+more than the row before it. ``--hidden`` and ``--channels`` size the attackers (the MLP's hidden units, the convolutional
 decoder's first feature map): the check that the table's attacker is not too small is the same grid point with
 larger attackers (``--hidden 1024 --channels 128``: both four times wider, 6.8x and 5.4x the weights at 6x8)
 changing re-identification by less than 3 points; so is the same attacker with four times the maximum epochs
