@@ -161,7 +161,7 @@ def figure(rows: list[dict], out: Path) -> Path | None:
             y = [100 * r["reid_top1"] for _, r in pts]
             lo = [100 * (r["reid_top1"] - r["reid_ci_low"]) for _, r in pts]
             hi = [100 * (r["reid_ci_high"] - r["reid_top1"]) for _, r in pts]
-            ax.errorbar(x, y, yerr=[lo, hi], marker="o", ms=3, capsize=2, label=f"<= {e} epochs")
+            ax.errorbar(x, y, yerr=[lo, hi], marker="o", ms=3, capsize=2, label=f"<= {_n(e)} epochs")
         ax.set_xscale("log")
         ax.set_title(f"{enc} {emb}, {attack}", fontsize=8)
         ax.set_xlabel("training pairs", fontsize=7)
