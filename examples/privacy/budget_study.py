@@ -9,12 +9,13 @@ for a quick check: ``dataset.train_size=600 dataset.val_size=200 dataset.test_si
 the attacker afresh with early stopping on a validation part of its pairs; the CSV has the privacy table's
 columns (``n_pairs``, ``max_epochs``, ``epochs_run``, ``val_loss``, ``reid_top1`` with its Wilson interval, ...).
 Re-identification has levelled off where a row with more pairs or more epochs re-identifies less than 3 points
-more than the row before it. ``--hidden`` and ``--channels`` size the attackers (the MLP's hidden units, the convolutional
-decoder's first feature map): the check that the table's attacker is not too small is the same grid point with
-larger attackers (``--hidden 1024 --channels 128``: both four times wider, 6.8x and 5.4x the weights at 6x8)
-changing re-identification by less than 3 points; so is the same attacker with four times the maximum epochs
-(``--epochs 200``). An interrupted study keeps its finished grid points in
-``OUT.partial/`` and resumes there (removed once the CSV is written).
+more than the row before it. ``--hidden`` and ``--channels`` size the attackers (the MLP's hidden units, the
+convolutional decoder's first feature map): the check that the table's attacker is not too weak is the same grid
+point with larger attackers (``--hidden 1024 --channels 128``: both four times wider, 6.8x and 5.4x the weights
+at 6x8) changing re-identification by less than 3 points; so is the same attacker with four times the maximum
+epochs (``--epochs 200``), and with a learning-rate schedule (``--schedule one_cycle --lr 3e-3``: warm-up to three
+times the constant rate, then cosine annealing over the 50 epochs). An interrupted study keeps its finished grid
+points in ``OUT.partial/`` and resumes there (removed once the CSV is written).
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from optoenc.config import compose, encoder_from_run
 from optoenc.plugins import get_registry
 from optoenc.privacy.budget import budget_study
 from optoenc.privacy.report import load_run, write_table
-from optoenc.privacy.settings import LearnedConfig, PrivacyConfig
+from optoenc.privacy.settings import SCHEDULES, LearnedConfig, PrivacyConfig
 
 
 def _ints(text: str) -> tuple[int, ...]:
@@ -51,6 +52,10 @@ def main(argv: list[str] | None = None) -> Path:
     p.add_argument("--hidden", type=int, default=LearnedConfig().hidden, help="the MLP attacker's hidden units per layer")
     p.add_argument("--channels", type=int, default=LearnedConfig().channels,
                    help="the convolutional attacker's channels in its first feature map")
+    p.add_argument("--lr", type=float, default=LearnedConfig().lr, help="the attackers' Adam learning rate "
+                   "(one_cycle: its peak)")
+    p.add_argument("--schedule", default=LearnedConfig().schedule, choices=SCHEDULES,
+                   help="the attackers' learning-rate schedule")
     p.add_argument("overrides", nargs="*", help="section.key=value settings of the run")
     args = p.parse_args(argv)
     if args.run:
@@ -64,7 +69,8 @@ def main(argv: list[str] | None = None) -> Path:
     rows = budget_study(
         encoder, splits, _ints(args.pairs), _ints(args.epochs), tuple(a for a in args.attacks.split(",") if a),
         config=PrivacyConfig(count=args.probes, gallery=args.gallery, attack_seeds=args.seeds),
-        learned_config=LearnedConfig(patience=args.patience, hidden=args.hidden, channels=args.channels), cache_root=run.trainer.cache_dir,
+        learned_config=LearnedConfig(patience=args.patience, hidden=args.hidden, channels=args.channels, lr=args.lr,
+                                     schedule=args.schedule), cache_root=run.trainer.cache_dir,
         progress=lambda msg: print(f"  {msg} ...", file=sys.stderr), label=label, test_acc=acc,
         resume_dir=partial,
     )

@@ -1,21 +1,23 @@
 """Tables and a figure from budget_study.py's CSVs: where each learned attacker levels off, and whether a
-stronger attacker (four times wider, or trained four times longer) re-identifies more.
+stronger attacker (four times wider, trained four times longer, or with a learning-rate schedule) re-identifies
+more.
 
     python examples/privacy/budget_table.py DIR --out docs/results/privacy
 
 DIR holds the budget studies, one CSV per run (``<encoder>-<embedding>.csv``, any name), and the stronger
 attackers': ``...-larger.csv`` (budget_study.py with ``--hidden 1024 --channels 128``: both four times wider,
-6.8x and 5.4x the weights at 6x8) and ``...-longer.csv`` (the default attackers with four times the maximum
-epochs, ``--epochs 200``). Writes into OUT:
+6.8x and 5.4x the weights at 6x8), ``...-longer.csv`` (the default attackers with four times the maximum
+epochs, ``--epochs 200``) and ``...-scheduled.csv`` (``--schedule one_cycle --lr 3e-3``). Writes into OUT:
 
-* ``budget.csv``: every row of every study, with ``attacker`` = ``default``, ``larger`` or ``longer``;
+* ``budget.csv``: every row of every study, with ``attacker`` = ``default``, ``larger``, ``longer`` or
+  ``scheduled``;
 * ``budget.md``: per cell and attack, re-identification top-1 [%] with its Wilson 95 % interval over the grid of
   pairs (rows) x maximum epochs (columns), and whether it has levelled off: the largest budget re-identifies
   less than :data:`RISE` (3 points) more than the next smaller pair count at the same epochs and the next
   smaller epoch budget at the same pairs;
-* ``attacker_size.md``: each stronger (larger or longer-trained) attacker against the camera's privacy-table row
-  for the same attack (with ``--table``; else the default attacker at the same pairs and epochs) and the table's
-  strongest black-box attack, the differences in points;
+* ``attacker_size.md``: each stronger (larger, longer-trained or scheduled) attacker against the camera's
+  privacy-table row for the same attack (with ``--table``; else the default attacker at the same pairs and
+  epochs) and the table's strongest black-box attack, the differences in points;
 * ``budget.png``: re-identification against pairs, one line per maximum epochs, one panel per cell and attack.
 """
 
@@ -29,8 +31,9 @@ from optoenc.privacy.report import COLUMNS, read_table, strength, write_table
 from optoenc.privacy.tables import acc_text, rate_text
 from optoenc.training.rundir import atomic_write_text
 
-#: The stronger attackers' files end with these (before ``.csv``): four times wider, four times the epochs.
-STRONGER = {"-larger": "larger", "-longer": "longer"}
+#: The stronger attackers' files end with these (before ``.csv``): four times wider, four times the epochs, a
+#: learning-rate schedule.
+STRONGER = {"-larger": "larger", "-longer": "longer", "-scheduled": "scheduled"}
 #: budget.csv's columns: the privacy table's and which attacker (``default``, ``larger`` or ``longer``).
 BUDGET_COLUMNS = (*COLUMNS, "attacker")
 
@@ -41,8 +44,8 @@ def _n(v) -> str:
 
 
 def load(folder: Path) -> list[dict]:
-    """Every row of the folder's budget CSVs, tagged ``attacker`` = ``larger`` (files ending -larger.csv),
-    ``longer`` (-longer.csv) or ``default``."""
+    """Every row of the folder's budget CSVs, tagged ``attacker`` by the file's ending (:data:`STRONGER`: e.g.
+    ``larger`` for -larger.csv) or ``default``."""
     rows = []
     for path in sorted(folder.glob("*.csv")):
         kind = next((k for suffix, k in STRONGER.items() if path.stem.endswith(suffix)), "default")
@@ -102,7 +105,7 @@ def budget_markdown(rows: list[dict]) -> str:
 
 
 def size_rows(rows: list[dict], table: list[dict] | None = None) -> list[dict]:
-    """Each stronger attacker (``larger``, ``longer``) beside its reference: the camera's privacy-table row for the
+    """Each stronger attacker (``larger``, ``longer``, ``scheduled``) beside its reference: the camera's privacy-table row for the
     same attack (``table``: the cameras' rows, 3 seeds averaged) where given, else the default attacker of the
     budget study at the same pairs and epochs; and beside the table's strongest black-box attack on that camera."""
     default = {(r["encoder"], r["embedding"], r["attack"], r["n_pairs"], r["max_epochs"]): r for r in rows

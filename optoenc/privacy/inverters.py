@@ -167,7 +167,7 @@ def fit(model: nn.Module, clean: torch.Tensor, scenes: torch.Tensor,
     """Train ``model`` in place on (noisy ``clean`` embedding, scene) pairs; returns its :class:`FitReport`.
 
     The last ``max(1, round(val_fraction * N))`` pairs of a seeded permutation validate (one noise draw, kept);
-    the others train (fresh noise every epoch, shuffled, Adam). After the last epoch the model holds the state
+    the others train (fresh noise every epoch, shuffled, Adam with ``config.schedule``). After the last epoch the model holds the state
     of its lowest validation loss and is in eval mode, on ``config.device`` (:func:`device`); the noise, the
     split and the batches are drawn on the CPU, so they do not depend on the device.
     """
@@ -184,6 +184,9 @@ def fit(model: nn.Module, clean: torch.Tensor, scenes: torch.Tensor,
     y_va, x_va = noise(clean[va].float(), g).float().to(dev), scenes[va].float().to(dev)
     model.to(dev)
     opt = torch.optim.Adam(model.parameters(), lr=config.lr)
+    steps_per_epoch = math.ceil(len(tr) / config.batch_size)
+    schedule = None if config.schedule == "constant" else torch.optim.lr_scheduler.OneCycleLR(
+        opt, max_lr=config.lr, total_steps=config.epochs * steps_per_epoch, pct_start=0.05, anneal_strategy="cos")
     model.train()
     best, best_state, best_epoch, since, history = math.inf, None, 0, 0, []
     for epoch in range(1, config.epochs + 1):
@@ -194,6 +197,8 @@ def fit(model: nn.Module, clean: torch.Tensor, scenes: torch.Tensor,
             opt.zero_grad()
             step.backward()
             opt.step()
+            if schedule is not None:
+                schedule.step()
         v = _evaluate(model, y_va, x_va, loss, max(config.batch_size, 1024))
         history.append(v)
         if v < best:

@@ -11,7 +11,7 @@ from ..settings import Settings, setting
 
 __all__ = [
     "ADMMConfig", "TikhonovConfig", "LearnedConfig", "PrivacyConfig", "ATTACKS", "LEARNED", "METHODS", "THREAT_MODELS",
-    "THREAT_MODEL", "LOSSES",
+    "THREAT_MODEL", "LOSSES", "SCHEDULES",
 ]  # fmt: skip
 
 #: Attack names, in table order.
@@ -30,6 +30,8 @@ THREAT_MODEL = {
 }  # fmt: skip
 #: Training losses of the learned attackers.
 LOSSES = ("mse", "l1")
+#: Learning-rate schedules of the learned attackers.
+SCHEDULES = ("constant", "one_cycle")
 #: Reconstruction methods of `optoenc reconstruct`.
 METHODS = ("admm", "tikhonov", "pinv")
 
@@ -68,7 +70,9 @@ class LearnedConfig(Settings):
     hidden: int = setting(256, "learned (MLP): units of each of the two hidden layers", ge=1)
     channels: int = setting(32, "learned_conv: channels of the first feature map (halved by each transposed "
                             "convolution, at least 8)", ge=1)
-    lr: float = setting(1e-3, "Adam learning rate", gt=0)
+    lr: float = setting(1e-3, "Adam learning rate (one_cycle: its peak)", gt=0)
+    schedule: str = setting("constant", "learning rate over training: constant, or one_cycle (torch's OneCycleLR "
+                            "over `epochs`: 5 % warm-up to `lr`, cosine annealing to lr / 2.5e5)", choices=SCHEDULES)
     batch_size: int = setting(128, "pairs per optimiser step", ge=1)
     device: str = setting("auto", "where the attackers train: auto (cuda when available, else cpu), cpu or cuda "
                           "(the sensor noise is drawn on the CPU either way)", choices=("auto", "cpu", "cuda"))

@@ -54,6 +54,35 @@ def test_a_patient_attacker_runs_every_epoch_while_validation_improves():
     assert rep.epochs_run == 4 and rep.history[-1] < rep.history[0]
 
 
+@pytest.mark.parametrize("schedule", ["constant", "one_cycle"])
+def test_the_learning_rate_follows_the_schedule(monkeypatch, schedule):
+    """constant: every step at ``lr``; one_cycle: from lr / 25 up to ``lr`` within the first 5 % of the steps,
+    then down to lr / 2.5e5 at the last step of the budget (torch's OneCycleLR: div_factor 25, final_div_factor
+    1e4), and the loss still falls."""
+    seen = []
+
+    class Spy(torch.optim.Adam):
+        def step(self, *a, **k):
+            seen.append(self.param_groups[0]["lr"])
+            return super().step(*a, **k)
+
+    monkeypatch.setattr(torch.optim, "Adam", Spy)
+    g = torch.Generator().manual_seed(6)
+    A = torch.randn(16, 9, generator=g, dtype=torch.float64)
+    scenes = torch.rand(300, 1, 3, 3, generator=g)
+    clean = SceneOperator.from_matrix(A, (1, 3, 3), (1, 4, 4)).forward(scenes.double()).float()
+    cfg = LearnedConfig(epochs=20, patience=100, hidden=32, lr=3e-3, batch_size=30, schedule=schedule)
+    _, rep = train_inverter(clean, scenes, NO_NOISE, cfg, seed=0)
+    assert len(seen) == 20 * 9 and rep.history[-1] < rep.history[0]  # 270 training pairs: 9 steps an epoch
+    if schedule == "constant":
+        assert set(seen) == {3e-3}
+    else:
+        peak = seen.index(max(seen))
+        assert seen[0] == pytest.approx(3e-3 / 25) and max(seen) == pytest.approx(3e-3)
+        assert peak <= 0.05 * len(seen) and seen[-1] == pytest.approx(3e-3 / 2.5e5, rel=0.05)
+        assert all(a >= b for a, b in zip(seen[peak:], seen[peak + 1:]))  # annealed, never raised again
+
+
 @pytest.mark.parametrize("shape,feature", [
     ((1, 28, 28), (C, 7, 7)),  # MNIST: two upsamplings from 7 x 7, no crop
     ((1, 20, 16), (C, 5, 4)),
