@@ -168,8 +168,9 @@ def fit(model: nn.Module, clean: torch.Tensor, scenes: torch.Tensor,
 
     The last ``max(1, round(val_fraction * N))`` pairs of a seeded permutation validate (one noise draw, kept);
     the others train (fresh noise every epoch, shuffled, Adam with the learning rate of ``config.schedule``).
-    After the last epoch the model holds the state of its lowest validation loss and is in eval mode, on ``config.device`` (:func:`device`); the noise, the
-    split and the batches are drawn on the CPU, so they do not depend on the device.
+    After the last epoch the model holds the state of its lowest validation loss and is in eval mode, on
+    ``config.device`` (:func:`device`); the noise, the split and the batches are drawn on the CPU, so they do not
+    depend on the device.
     """
     n = len(clean)
     if n < 2:
