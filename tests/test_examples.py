@@ -303,6 +303,9 @@ def test_budget_table_says_where_an_attacker_levels_off(tmp_path):
     (row,) = mod.size_rows([*flat.values(), longer], table[:2])
     assert (row["attacker"], row["max_epochs"], row["change_pts"], row["over_best_pts"]) == ("longer", 200.0, "+9.0", "+5.0")
     assert "200 epochs" not in mod.budget_markdown([*flat.values(), longer])
+    # without the table it is set against the grid's point with the same pairs and the most epochs (50: 0.31)
+    (row,) = mod.size_rows([*flat.values(), longer])
+    assert (row["reference"], row["change_pts"]) == ("budget", "+14.0")
 
 
 def test_privacy_headline_has_one_line_per_cell_with_each_threat_models_strongest_attack():

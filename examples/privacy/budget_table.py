@@ -34,7 +34,7 @@ from optoenc.training.rundir import atomic_write_text
 #: The stronger attackers' files end with these (before ``.csv``): four times wider, four times the epochs, a
 #: learning-rate schedule.
 STRONGER = {"-larger": "larger", "-longer": "longer", "-scheduled": "scheduled"}
-#: budget.csv's columns: the privacy table's and which attacker (``default``, ``larger`` or ``longer``).
+#: budget.csv's columns: the privacy table's and which attacker (``default`` or one of :data:`STRONGER`).
 BUDGET_COLUMNS = (*COLUMNS, "attacker")
 
 
@@ -105,11 +105,15 @@ def budget_markdown(rows: list[dict]) -> str:
 
 
 def size_rows(rows: list[dict], table: list[dict] | None = None) -> list[dict]:
-    """Each stronger attacker (``larger``, ``longer``, ``scheduled``) beside its reference: the camera's privacy-table row for the
-    same attack (``table``: the cameras' rows, 3 seeds averaged) where given, else the default attacker of the
-    budget study at the same pairs and epochs; and beside the table's strongest black-box attack on that camera."""
-    default = {(r["encoder"], r["embedding"], r["attack"], r["n_pairs"], r["max_epochs"]): r for r in rows
-               if r["attacker"] == "default"}
+    """Each stronger attacker (``larger``, ``longer``, ``scheduled``) beside its reference: the camera's
+    privacy-table row for the same attack (``table``: the cameras' rows, 3 seeds averaged) where given, else the
+    budget study's default attacker at the same pairs and the most epochs up to its own (a longer-trained
+    attacker's 200 against the grid's 50); and beside the table's strongest black-box attack on that camera."""
+    def grid_point(b: dict) -> dict | None:
+        same = [r for r in rows if r["attacker"] == "default" and r["max_epochs"] <= b["max_epochs"]
+                and all(r[k] == b[k] for k in ("encoder", "embedding", "attack", "n_pairs"))]
+        return max(same, key=lambda r: r["max_epochs"], default=None)
+
     table = table or []
     out = []
     for b in (r for r in rows if r["attacker"] != "default"):
@@ -118,7 +122,7 @@ def size_rows(rows: list[dict], table: list[dict] | None = None) -> list[dict]:
         ref = next((t for t in own if t["attack"] == b["attack"]), None)
         source = "table"
         if ref is None:
-            ref, source = default.get((*cam, b["attack"], b["n_pairs"], b["max_epochs"])), "budget"
+            ref, source = grid_point(b), "budget"
         if ref is None:
             continue
         bb = [t for t in own if t["threat_model"] == "black_box"]

@@ -29,23 +29,18 @@ done
 wait
 optoenc privacy --sweep "$T1" --match '*decoder=fcnn,seed=0' --out "$W/privacy/all" $A > "$W/privacy-all.log" 2>&1
 
-# 2. The budget study (pairs x maximum epochs): lens, fixed and learned LCD at 6x8 and 24x32. Then attackers four
-#    times wider on the cameras whose table attack leaves room (the lens and LCD cameras at 24x32 are re-identified
-#    100 % by the table's attackers, which no attacker can exceed): the three at 6x8 and the coded aperture at 24x32.
-budget() {  # $1 file suffix, $2 the cameras (ENCODER-SIZE, space-separated), then budget_study.py options
-    local suffix="$1" cameras="$2"; shift 2
-    for camera in $cameras; do
-        local enc="${camera%-*}" size="${camera##*-}"
-        local f="$W/budget/$enc-$size$suffix.csv"
-        [ -f "$f" ] && continue
-        python "$HERE/budget_study.py" --run "$T1/encoder=$enc,embedding=$size,decoder=fcnn,seed=0" --out "$f" \
-            --attacks learned,learned_conv --seeds 1 --probes 1000 "$@" > "${f%.csv}.log" 2>&1 &
-        while [ "$(jobs -r | wc -l)" -ge 2 ]; do sleep 10; done
-    done
-    wait
+# 2. The budget study (pairs x maximum epochs): lens, fixed and learned LCD at 6x8 and 24x32, one queue of two jobs.
+study() {  # $1 the file's suffix ("" for the grid, else -larger, -longer or -scheduled), $2 ENCODER-SIZE, then
+           # budget_study.py options; a CSV that exists is kept
+    local enc="${2%-*}" size="${2##*-}" f="$W/budget/$2$1.csv"; shift 2
+    [ -f "$f" ] || python "$HERE/budget_study.py" --run "$T1/encoder=$enc,embedding=$size,decoder=fcnn,seed=0" \
+        --out "$f" --seeds 1 --probes 1000 "$@" > "${f%.csv}.log" 2>&1
 }
-budget "" "lens-6x8 fixed_slm-6x8 learned_slm-6x8 lens-24x32 fixed_slm-24x32 learned_slm-24x32" \
-    --pairs 1000,10000,60000 --epochs 5,15,50
+queue() { "$@" & while [ "$(jobs -r | wc -l)" -ge 2 ]; do sleep 10; done; }
+for camera in lens-6x8 fixed_slm-6x8 learned_slm-6x8 lens-24x32 fixed_slm-24x32 learned_slm-24x32; do
+    queue study "" "$camera" --attacks learned,learned_conv --pairs 1000,10000,60000 --epochs 5,15,50
+done
+wait
 
 # 3. Stronger attackers at all pairs, one queue of two jobs, on the cameras whose table attack leaves room (the
 #    lens and LCD cameras at 24x32 are re-identified 100 % by the table's attackers, which no attacker can exceed):
@@ -54,22 +49,16 @@ budget "" "lens-6x8 fixed_slm-6x8 learned_slm-6x8 lens-24x32 fixed_slm-24x32 lea
 #    times wider (hidden 1024, at most 50 epochs; the convolutional decoder four times wider, 128 channels, costs
 #    about 16 times the table's on a CPU and is left out). The three 6x8 cameras, and the coded aperture at 24x32
 #    (wider).
-stronger() {  # $1 larger, longer or scheduled, $2 ENCODER-SIZE, then budget_study.py options
-    local kind="$1" enc="${2%-*}" size="${2##*-}" f="$W/budget/$2-$1.csv"; shift 2
-    [ -f "$f" ] || python "$HERE/budget_study.py" --run "$T1/encoder=$enc,embedding=$size,decoder=fcnn,seed=0" \
-        --out "$f" --seeds 1 --probes 1000 --pairs 60000 "$@" > "${f%.csv}.log" 2>&1
-}
-queue() { "$@" & while [ "$(jobs -r | wc -l)" -ge 2 ]; do sleep 10; done; }
-LONGER="--attacks learned,learned_conv --epochs 200"
-SCHEDULED="--attacks learned,learned_conv --epochs 50 --schedule one_cycle --lr 3e-3"
-LARGER="--attacks learned --epochs 50 --hidden 1024"
-for camera in fixed_slm-6x8 learned_slm-6x8 lens-6x8; do queue stronger longer "$camera" $LONGER; done
-for camera in fixed_slm-6x8 learned_slm-6x8; do queue stronger larger "$camera" $LARGER; done
-queue stronger scheduled fixed_slm-6x8 $SCHEDULED
-queue stronger scheduled lens-6x8 $SCHEDULED
-queue stronger larger lens-6x8 $LARGER
-queue stronger scheduled learned_slm-6x8 $SCHEDULED
-queue stronger larger coded_aperture-24x32 $LARGER
+LONGER="--attacks learned,learned_conv --pairs 60000 --epochs 200"
+SCHEDULED="--attacks learned,learned_conv --pairs 60000 --epochs 50 --schedule one_cycle --lr 3e-3"
+LARGER="--attacks learned --pairs 60000 --epochs 50 --hidden 1024"
+for camera in fixed_slm-6x8 learned_slm-6x8 lens-6x8; do queue study -longer "$camera" $LONGER; done
+for camera in fixed_slm-6x8 learned_slm-6x8; do queue study -larger "$camera" $LARGER; done
+queue study -scheduled fixed_slm-6x8 $SCHEDULED
+queue study -scheduled lens-6x8 $SCHEDULED
+queue study -larger lens-6x8 $LARGER
+queue study -scheduled learned_slm-6x8 $SCHEDULED
+queue study -larger coded_aperture-24x32 $LARGER
 wait
 
 # 4. The defences' runs: variable patterns and privacy-aware training, 5 epochs each (examples/privacy/defence.yaml).

@@ -79,7 +79,8 @@ def test_the_learning_rate_follows_the_schedule(monkeypatch, schedule):
     else:
         peak = seen.index(max(seen))
         assert seen[0] == pytest.approx(3e-3 / 25) and max(seen) == pytest.approx(3e-3)
-        assert peak <= 0.05 * len(seen) and seen[-1] == pytest.approx(3e-3 / 2.5e5, rel=0.05)
+        # the last of the budget's steps runs at OneCycleLR's final rate itself (float arithmetic: rel 1e-9)
+        assert peak <= 0.05 * len(seen) and seen[-1] == pytest.approx(3e-3 / 2.5e5, rel=1e-9)
         assert all(a >= b for a, b in zip(seen[peak:], seen[peak + 1:]))  # annealed, never raised again
 
 
