@@ -266,9 +266,9 @@ def _budget_row(pairs, epochs, reid, size=256, attacker="default"):
 
 def test_budget_table_says_where_an_attacker_levels_off(tmp_path):
     """examples/privacy/budget_table.py: a grid whose largest budget re-identifies less than 3 points more than
-    its neighbours has levelled off, one still rising by 10 points (or 4, from 96 % to 100 %) has not; a stronger
-    attacker (larger, or trained longer) is paired with the default one at the same grid point or with the camera's
-    table row."""
+    its neighbours has levelled off, one still rising by 10 points (or 4, from 96 % to 100 %) has not; an attacker
+    that is not a grid (larger, or the former attacker's variants) is paired with its own grid's point or with the
+    camera's table row."""
     spec = importlib.util.spec_from_file_location("budget_table", EXAMPLES / "privacy" / "budget_table.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
@@ -294,18 +294,27 @@ def test_budget_table_says_where_an_attacker_levels_off(tmp_path):
     assert paired["best"].startswith("learned_conv 40.0")
     assert (other["encoder"], other["change_pts"], other["over_best_pts"]) == ("coded_aperture", "+1.0", "+1.0")
     assert "levelled off at 60000 pairs" in mod.budget_markdown(rows)
-    # the default attacker trained four times longer (-longer.csv) is a stronger attacker too: set against the same
-    # table row (0.36 -> 0.45: +9.0 points), and kept out of the budget grid (its epochs are no grid column)
-    for name, row in (("lens-6x8.csv", flat[(60000, 50)]), ("lens-6x8-longer.csv", _budget_row(60000, 200, 0.45))):
+    # the former attacker's variants (here trained four times longer, -former-longer.csv) are set against the same
+    # table row (0.36 -> 0.45: +9.0 points) and kept out of the grids (their epochs are no grid column)
+    for name, row in (("lens-6x8.csv", flat[(60000, 50)]), ("lens-6x8-former-longer.csv", _budget_row(60000, 200, 0.45)),
+                      ("lens-6x8-former.csv", flat[(60000, 50)])):
         (tmp_path / name).write_text("reid_top1,n_pairs,max_epochs\n" f"{row['reid_top1']},60000,{int(row['max_epochs'])}\n")
-    assert sorted(r["attacker"] for r in mod.load(tmp_path)) == ["default", "longer"]
-    longer = {**_budget_row(60000, 200, 0.45), "attacker": "longer"}
+    assert sorted(r["attacker"] for r in mod.load(tmp_path)) == ["default", "former", "former-longer"]
+    longer = {**_budget_row(60000, 200, 0.45), "attacker": "former-longer"}
     (row,) = mod.size_rows([*flat.values(), longer], table[:2])
-    assert (row["attacker"], row["max_epochs"], row["change_pts"], row["over_best_pts"]) == ("longer", 200.0, "+9.0", "+5.0")
+    assert (row["attacker"], row["max_epochs"], row["change_pts"], row["over_best_pts"]) == ("former-longer", 200.0, "+9.0", "+5.0")
     assert "200 epochs" not in mod.budget_markdown([*flat.values(), longer])
-    # without the table it is set against the grid's point with the same pairs and the most epochs (50: 0.31)
-    (row,) = mod.size_rows([*flat.values(), longer])
-    assert (row["reference"], row["change_pts"]) == ("budget", "+14.0")
+    # without the table it is set against its own grid's point with the same pairs and the most epochs up to its
+    # own: the former grid's (50 epochs: 0.25, +20.0 points), not the table attacker's grid (0.31)
+    former = [{**r, "reid_top1": 0.25, "attacker": "former"} for r in flat.values()]
+    (row,) = mod.size_rows([*flat.values(), *former, longer])
+    assert (row["reference"], row["change_pts"]) == ("budget", "+20.0")
+    # both grids are tabled, each under its attacker's name; a file whose ending names no attacker is refused
+    text = mod.budget_markdown([*flat.values(), *former])
+    assert text.count("**lens 6x8, learned") == 2 and mod.ATTACKERS["former"] in text
+    (tmp_path / "lens-6x8-wider.csv").write_text("reid_top1\n0.5\n")
+    with pytest.raises(ValueError, match="lens-6x8-wider.csv: attacker 'wider'"):
+        mod.load(tmp_path)
 
 
 def test_privacy_headline_has_one_line_per_cell_with_each_threat_models_strongest_attack():

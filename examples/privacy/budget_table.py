@@ -1,23 +1,23 @@
-"""Tables and a figure from budget_study.py's CSVs: where each learned attacker levels off, and whether a
-stronger attacker (four times wider, trained four times longer, or with a learning-rate schedule) re-identifies
-more.
+"""Tables and a figure from budget_study.py's CSVs: where each learned attacker levels off over pairs x epochs,
+and whether another attacker (wider, or the former attacker's variants) re-identifies more than the table's.
 
     python examples/privacy/budget_table.py DIR --out docs/results/privacy
 
-DIR holds the budget studies, one CSV per run (``<encoder>-<embedding>.csv``, any name), and the stronger
-attackers': ``...-larger.csv`` (budget_study.py with ``--hidden 1024 --channels 128``: both four times wider,
-6.8x and 5.4x the weights at 6x8), ``...-longer.csv`` (the default attackers with four times the maximum
-epochs, ``--epochs 200``) and ``...-scheduled.csv`` (``--schedule one_cycle --lr 3e-3``). Writes into OUT:
+DIR holds the budget studies, one CSV per camera and attacker, ``<encoder>-<embedding>[-<attacker>].csv``
+(see :data:`ATTACKERS`): the table's attacker (no ending: a grid of pairs x maximum epochs), the same with
+four times the weights (``-larger``: ``--hidden 2048``, 3.1x the weights at 6x8), and the former table
+attacker (``-former``: ``--hidden 256 --schedule constant --lr 1e-3``, a grid) with its stronger variants
+(``-former-larger``: ``--hidden 1024``; ``-former-longer``: ``--epochs 200``; ``-former-scheduled``:
+``--schedule one_cycle --lr 3e-3``). Writes into OUT:
 
-* ``budget.csv``: every row of every study, with ``attacker`` = ``default``, ``larger``, ``longer`` or
-  ``scheduled``;
-* ``budget.md``: per cell and attack, re-identification top-1 [%] with its Wilson 95 % interval over the grid of
-  pairs (rows) x maximum epochs (columns), and whether it has levelled off: the largest budget re-identifies
-  less than :data:`RISE` (3 points) more than the next smaller pair count at the same epochs and the next
-  smaller epoch budget at the same pairs;
-* ``attacker_size.md``: each stronger (larger, longer-trained or scheduled) attacker against the camera's
-  privacy-table row for the same attack (with ``--table``; else the default attacker at the same pairs and
-  epochs) and the table's strongest black-box attack, the differences in points;
+* ``budget.csv``: every row of every study, with ``attacker`` the file's ending (``default`` for none);
+* ``budget.md``: per grid (the table's and the former attacker's), cell and attack, re-identification top-1 [%]
+  with its Wilson 95 % interval over pairs (rows) x maximum epochs (columns), and whether it has levelled off:
+  the largest budget re-identifies less than :data:`RISE` (3 points) more than the next smaller pair count at
+  the same epochs and the next smaller epoch budget at the same pairs;
+* ``attacker_size.md``: every attacker that is not a grid (the larger and the former ones) against the camera's
+  privacy-table row for the same attack (with ``--table``; else its own grid's point at the same pairs and
+  the most epochs up to its own) and the table's strongest black-box attack, the differences in points;
 * ``budget.png``: re-identification against pairs, one line per maximum epochs, one panel per cell and attack.
 """
 
@@ -31,10 +31,20 @@ from optoenc.privacy.report import COLUMNS, read_table, strength, write_table
 from optoenc.privacy.tables import acc_text, rate_text
 from optoenc.training.rundir import atomic_write_text
 
-#: The stronger attackers' files end with these (before ``.csv``): four times wider, four times the epochs, a
-#: learning-rate schedule.
-STRONGER = {"-larger": "larger", "-longer": "longer", "-scheduled": "scheduled"}
-#: budget.csv's columns: the privacy table's and which attacker (``default`` or one of :data:`STRONGER`).
+#: The attackers, by the ending of their files' names (after ``<encoder>-<embedding>-``; ``default``: none):
+#: the table's attacker, and the former table attacker (the table's attacker before the budget study showed it
+#: still rising at 6x8), each with the settings its rows were trained with (budget_study.py's options).
+ATTACKERS = {
+    "default": "the table's attacker (the defaults: MLP 1024 units, one-cycle schedule to 3e-3)",
+    "larger": "the table's MLP with 2048 units (--hidden 2048, 3.1x the weights at 6x8)",
+    "former": "the former attacker (--hidden 256 --schedule constant --lr 1e-3)",
+    "former-larger": "the former MLP with 1024 units (--hidden 1024 --schedule constant --lr 1e-3)",
+    "former-longer": "the former attacker, at most 200 epochs (--hidden 256 --schedule constant --lr 1e-3 --epochs 200)",
+    "former-scheduled": "the former attacker with the one-cycle schedule (--hidden 256 --schedule one_cycle --lr 3e-3)",
+}
+#: The attackers studied over a grid of pairs x epochs (the others are single points set against the table).
+GRIDS = ("default", "former")
+#: budget.csv's columns: the privacy table's and which attacker (a key of :data:`ATTACKERS`).
 BUDGET_COLUMNS = (*COLUMNS, "attacker")
 
 
@@ -43,14 +53,28 @@ def _n(v) -> str:
     return str(int(v)) if isinstance(v, float) and v == int(v) else str(v)
 
 
+def attacker(path: Path) -> str:
+    """The attacker of a budget CSV from its name, ``<encoder>-<embedding>[-<attacker>].csv`` (encoder names hold
+    no ``-``).
+
+    Raises:
+        ValueError: an ending that is not one of :data:`ATTACKERS`.
+    """
+    parts = path.stem.split("-", 2)
+    kind = parts[2] if len(parts) == 3 else "default"
+    if kind not in ATTACKERS:
+        raise ValueError(f"budget file {path.name}: attacker {kind!r} is not one of {', '.join(ATTACKERS)}")
+    return kind
+
+
+def grid_of(kind: str) -> str:
+    """The grid an attacker belongs to: ``former`` for the former attacker's variants, else ``default``."""
+    return "former" if kind.startswith("former") else "default"
+
+
 def load(folder: Path) -> list[dict]:
-    """Every row of the folder's budget CSVs, tagged ``attacker`` by the file's ending (:data:`STRONGER`: e.g.
-    ``larger`` for -larger.csv) or ``default``."""
-    rows = []
-    for path in sorted(folder.glob("*.csv")):
-        kind = next((k for suffix, k in STRONGER.items() if path.stem.endswith(suffix)), "default")
-        rows += [{**r, "attacker": kind} for r in read_table(path)]
-    return rows
+    """Every row of the folder's budget CSVs, tagged ``attacker`` by the file's name (:func:`attacker`)."""
+    return [{**r, "attacker": attacker(path)} for path in sorted(folder.glob("*.csv")) for r in read_table(path)]
 
 
 def _cells(rows):
@@ -82,16 +106,23 @@ def levelled(grid: dict) -> bool:
     return _flat(top, less_pairs) and _flat(top, less_epochs)
 
 
+def _grids(rows: list[dict]):
+    """(grid kind, encoder, embedding, attack, its grid ``(pairs, epochs) -> row``) for every grid study."""
+    for kind in GRIDS:
+        mine = [r for r in rows if r["attacker"] == kind]
+        for enc, emb, attack in _cells(mine):
+            yield kind, enc, emb, attack, {(r["n_pairs"], r["max_epochs"]): r for r in mine
+                                           if (r["encoder"], r["embedding"], r["attack"]) == (enc, emb, attack)}
+
+
 def budget_markdown(rows: list[dict]) -> str:
     out = []
-    default = [r for r in rows if r["attacker"] == "default"]
-    for enc, emb, attack in _cells(default):
-        grid = {(r["n_pairs"], r["max_epochs"]): r for r in default
-                if (r["encoder"], r["embedding"], r["attack"]) == (enc, emb, attack)}
+    for kind, enc, emb, attack, grid in _grids(rows):
         pairs, epochs = sorted({p for p, _ in grid}), sorted({e for _, e in grid})
         verdict = "levelled off" if levelled(grid) else "still rising"
-        out.append(f"**{enc} {emb}, {attack}** (test accuracy {acc_text(grid[(pairs[-1], epochs[-1])])};"
-                   f" {verdict} at {_n(pairs[-1])} pairs, <= {_n(epochs[-1])} epochs)\n")
+        out.append(f"**{enc} {emb}, {attack}, {ATTACKERS[kind]}** (test accuracy "
+                   f"{acc_text(grid[(pairs[-1], epochs[-1])])}; {verdict} at {_n(pairs[-1])} pairs, "
+                   f"<= {_n(epochs[-1])} epochs)\n")
         out.append("| pairs | " + " | ".join(f"<= {_n(e)} epochs" for e in epochs) + " |")
         out.append("|---|" + "---|" * len(epochs))
         for p in pairs:
@@ -105,18 +136,18 @@ def budget_markdown(rows: list[dict]) -> str:
 
 
 def size_rows(rows: list[dict], table: list[dict] | None = None) -> list[dict]:
-    """Each stronger attacker (``larger``, ``longer``, ``scheduled``) beside its reference: the camera's
-    privacy-table row for the same attack (``table``: the cameras' rows, 3 seeds averaged) where given, else the
-    budget study's default attacker at the same pairs and the most epochs up to its own (a longer-trained
-    attacker's 200 against the grid's 50); and beside the table's strongest black-box attack on that camera."""
+    """Each attacker that is not a grid (:data:`GRIDS`) beside its reference: the camera's privacy-table row for
+    the same attack (``table``: the cameras' rows, 3 seeds averaged) where given, else its own grid's point at the
+    same pairs and the most epochs up to its own (a longer-trained attacker's 200 against the grid's 50); and
+    beside the table's strongest black-box attack on that camera."""
     def grid_point(b: dict) -> dict | None:
-        same = [r for r in rows if r["attacker"] == "default" and r["max_epochs"] <= b["max_epochs"]
+        same = [r for r in rows if r["attacker"] == grid_of(b["attacker"]) and r["max_epochs"] <= b["max_epochs"]
                 and all(r[k] == b[k] for k in ("encoder", "embedding", "attack", "n_pairs"))]
         return max(same, key=lambda r: r["max_epochs"], default=None)
 
     table = table or []
     out = []
-    for b in (r for r in rows if r["attacker"] != "default"):
+    for b in (r for r in rows if r["attacker"] not in GRIDS):
         cam = (b["encoder"], b["embedding"])
         own = [t for t in table if (t["encoder"], t["embedding"]) == cam]
         ref = next((t for t in own if t["attack"] == b["attack"]), None)
@@ -141,7 +172,7 @@ def size_rows(rows: list[dict], table: list[dict] | None = None) -> list[dict]:
 def size_markdown(rows: list[dict]) -> str:
     cols = ("encoder", "embedding", "attack", "attacker", "reference", "n_pairs", "max_epochs", "size", "reid",
             "size_stronger", "reid_stronger", "change_pts", "best", "over_best_pts", "val_loss", "val_loss_stronger")
-    heads = ("encoder", "embedding", "attack", "stronger attacker", "reference", "pairs", "max epochs", "size",
+    heads = ("encoder", "embedding", "attack", "attacker", "reference", "pairs", "max epochs", "size",
              "re-id [%]", "its size", "its re-id [%]", "change [pts]", "table's best black-box [%]",
              "it - best [pts]", "val loss", "its val loss")
     lines = ["| " + " | ".join(heads) + " |", "|" + "---|" * len(heads)]
@@ -152,25 +183,24 @@ def size_markdown(rows: list[dict]) -> str:
 def figure(rows: list[dict], out: Path) -> Path | None:
     from optoenc.training.pictures import new_figure, save_figure
 
-    default = [r for r in rows if r["attacker"] == "default"]
-    cells = _cells(default)
-    if not cells:
+    grids = list(_grids(rows))
+    if not grids:
         return None
-    cols = min(4, len(cells))
-    nrows = (len(cells) + cols - 1) // cols
+    cols = min(4, len(grids))
+    nrows = (len(grids) + cols - 1) // cols
     plt, fig = new_figure((3.6 * cols, 2.8 * nrows))
-    for i, (enc, emb, attack) in enumerate(cells):
+    for i, (kind, enc, emb, attack, grid) in enumerate(grids):
         ax = fig.add_subplot(nrows, cols, i + 1)
-        mine = [r for r in default if (r["encoder"], r["embedding"], r["attack"]) == (enc, emb, attack)]
+        mine = list(grid.values())
         for e in sorted({r["max_epochs"] for r in mine}):
-            pts = sorted((r["n_pairs"], r) for r in mine if r["max_epochs"] == e)
+            pts = sorted(((r["n_pairs"], r) for r in mine if r["max_epochs"] == e), key=lambda t: t[0])
             x = [p for p, _ in pts]
             y = [100 * r["reid_top1"] for _, r in pts]
             lo = [100 * (r["reid_top1"] - r["reid_ci_low"]) for _, r in pts]
             hi = [100 * (r["reid_ci_high"] - r["reid_top1"]) for _, r in pts]
             ax.errorbar(x, y, yerr=[lo, hi], marker="o", ms=3, capsize=2, label=f"<= {_n(e)} epochs")
         ax.set_xscale("log")
-        ax.set_title(f"{enc} {emb}, {attack}", fontsize=8)
+        ax.set_title(f"{enc} {emb}, {attack}" + (", former attacker" if kind == "former" else ""), fontsize=8)
         ax.set_xlabel("training pairs", fontsize=7)
         ax.set_ylabel("re-identification top-1 [%]", fontsize=7)
         ax.tick_params(labelsize=7)
