@@ -68,7 +68,8 @@ class LearnedConfig(Settings):
                          "(at most the split's size)", ge=2)
     epochs: int = setting(50, "maximum training epochs (fresh sensor noise every epoch; training stops earlier when "
                           "the validation loss has not improved for `patience` epochs)", ge=1)
-    patience: int = setting(5, "epochs without a lower validation loss before training stops", ge=1)
+    patience: int = setting(5, "epochs without a lower validation loss before training stops (constant schedule; "
+                            "one_cycle runs to its end, the lowest validation loss's state kept either way)", ge=1)
     val_fraction: float = setting(0.1, "fraction of the pairs held out to validate (at least one pair)", gt=0, lt=1)
     loss: str = setting("mse", "training and validation loss: mse or l1", choices=LOSSES)
     hidden: int = setting(1024, "learned (MLP): units of each of the two hidden layers", ge=1)

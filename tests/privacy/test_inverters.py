@@ -24,18 +24,23 @@ def _val_loss(model, clean, scenes, seed, n_val):
         return float(torch.nn.functional.mse_loss(model(clean[va]), scenes[va]))
 
 
-def test_early_stopping_stops_when_validation_rises_and_restores_the_best():
+@pytest.mark.parametrize("schedule", ["constant", "one_cycle"])
+def test_early_stopping_stops_when_validation_rises_and_restores_the_best(schedule):
     """Targets unrelated to the inputs: a wide MLP memorises its 40 training pairs and its validation loss rises
-    once it leaves the mean prediction; training must stop ``patience`` epochs after the best epoch and keep it."""
+    once it leaves the mean prediction. A constant rate must stop ``patience`` epochs after the best epoch; a
+    one-cycle schedule runs to its end; either keeps the best epoch's state."""
     torch.manual_seed(0)
     g = torch.Generator().manual_seed(5)
     clean = torch.randn(50, 1, 4, 4, generator=g)
     scenes = torch.rand(50, 1, 4, 4, generator=g)
-    cfg = LearnedConfig(epochs=200, patience=4, val_fraction=0.2, hidden=256, lr=1e-2, batch_size=10)
+    cfg = LearnedConfig(epochs=200, patience=4, val_fraction=0.2, hidden=256, lr=1e-2, batch_size=10, schedule=schedule)
     model = build("mlp", (1, 4, 4), (1, 4, 4), cfg)
     rep = fit(model, clean, scenes, NO_NOISE, cfg, seed=1)
     assert (rep.pairs, rep.val_pairs, rep.max_epochs) == (50, 10, 200)
-    assert rep.epochs_run < 200 and rep.epochs_run == rep.best_epoch + cfg.patience  # stopped by patience
+    if schedule == "constant":
+        assert rep.epochs_run < 200 and rep.epochs_run == rep.best_epoch + cfg.patience  # stopped by patience
+    else:
+        assert rep.epochs_run == 200 and rep.best_epoch + cfg.patience < 200  # patience passed, yet not stopped
     assert rep.val_loss == min(rep.history) == rep.history[rep.best_epoch - 1]
     assert rep.history[-1] > rep.val_loss  # validation loss rose after the best epoch
     # The returned model is the best epoch's, not the last one's (float32 sums, summed vs averaged: 1e-6).
