@@ -320,7 +320,7 @@ def test_budget_table_says_where_an_attacker_levels_off(tmp_path):
 def test_privacy_headline_has_one_line_per_cell_with_each_threat_models_strongest_attack():
     """examples/privacy/make_privacy.py: a cell's line names each threat model's strongest attack (plaintext with
     its pair count) and its re-identification interval; a threat model with no attack shows dashes; the last
-    columns name the strongest of them all."""
+    columns name the strongest of them all and the learned MLP's size."""
     mod = _make_privacy()
     row = {"encoder": "lens", "embedding": "6x8", "test_acc": 0.7348, "psnr": 14.04, "ssim": 0.512}
     best = [{**row, "threat_model": "known_mask", "attack": "admm", "n_pairs": "", "reid_top1": 0.1,
@@ -330,7 +330,10 @@ def test_privacy_headline_has_one_line_per_cell_with_each_threat_models_stronges
     lines = mod.headline(best).splitlines()
     assert len(lines) == 3
     assert lines[2] == ("| lens | 6x8 | 73.5 % | admm | 10.0 [8.3, 12.0] | 14.0 | 0.51 | plaintext (N=1000) | "
-                        "20.0 [17.6, 22.6] | 14.0 | 0.51 | - | - | - | - | plaintext (N=1000) | 20.0 [17.6, 22.6] |")
+                        "20.0 [17.6, 22.6] | 14.0 | 0.51 | - | - | - | - | plaintext (N=1000) | 20.0 [17.6, 22.6] | - |")
+    # the last column names the camera's learned MLP's hidden units (which attacker measured the row)
+    mlp = {**row, "threat_model": "black_box", "attack": "learned", "attacker_size": 1024.0}
+    assert mod.headline(best, [*best, mlp]).splitlines()[2].endswith("| 1024 |")
 
 
 def _make_privacy():

@@ -69,21 +69,29 @@ _RESULTS = _load("make_results")
 ENCODERS, EMBEDDINGS = _RESULTS.ENCODERS, _RESULTS.EMBEDDINGS
 
 
+def _n(v) -> str:
+    """A count as read back from CSV (a float) written as a whole number."""
+    return str(int(float(v))) if float(v) == int(float(v)) else str(v)
+
+
 def _attack(r: dict) -> str:
     return f"{r['attack']} (N={int(float(r['n_pairs']))})" if r["attack"] == "plaintext" else r["attack"]
 
 
-def headline(best: list[dict]) -> str:
+def headline(best: list[dict], rows: list[dict] = ()) -> str:
     """One line per encoder and embedding: test accuracy, then per threat model its strongest attack, its
-    re-identification top-1 with the Wilson 95 % interval, PSNR and SSIM; last the strongest of them all (what an
+    re-identification top-1 with the Wilson 95 % interval, PSNR and SSIM; then the strongest of them all (what an
     attacker who knows the mask can reach: the mask lets him simulate any number of pairs, so every attack of
-    the table is open to him)."""
+    the table is open to him); last the hidden units of the camera's ``learned`` MLP in ``rows`` (its
+    ``attacker_size``: 256 the former attacker, constant rate; 1024 the current defaults, one-cycle)."""
     by = {(r["encoder"], r["embedding"], r["threat_model"]): r for r in best}
+    units = {(r["encoder"], r["embedding"]): _n(r["attacker_size"]) for r in rows
+             if r["attack"] == "learned" and given(r.get("attacker_size"))}
     cells = [(e, s) for e in ENCODERS for s in EMBEDDINGS if any((e, s, t) in by for t in THREAT_MODELS)]
     head = ["encoder", "embedding", "test acc"]
     for t in THREAT_MODELS:
         head += [f"{t}: attack", "re-id [%] (95 % CI)", "PSNR [dB]", "SSIM"]
-    head += ["strongest of all", "re-id [%] (95 % CI)"]
+    head += ["strongest of all", "re-id [%] (95 % CI)", "MLP units"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for enc, emb in cells:
         mine = [by[(enc, emb, t)] for t in THREAT_MODELS if (enc, emb, t) in by]
@@ -95,7 +103,7 @@ def headline(best: list[dict]) -> str:
                 continue
             line += [_attack(r), rate_text(r), f"{float(r['psnr']):.1f}", f"{float(r['ssim']):.2f}"]
         top = max(mine, key=strength)
-        line += [_attack(top), rate_text(top)]
+        line += [_attack(top), rate_text(top), units.get((enc, emb), "-")]
         lines.append("| " + " | ".join(line) + " |")
     return "\n".join(lines) + "\n"
 
@@ -166,7 +174,7 @@ def derive(out: Path, chance: float = CHANCE) -> dict[Path, str]:
         texts[out / "privacy.csv"] = csv_text(rows, COLUMNS)
         texts[priv / "privacy.md"] = document(rows)
         texts[priv / "privacy_best.csv"] = csv_text(best, COLUMNS)
-        texts[priv / "headline.md"] = headline(best) + "\n" + question(best, chance)
+        texts[priv / "headline.md"] = headline(best, rows) + "\n" + question(best, chance)
     if (priv / "budget.csv").is_file():
         bt, budget = _load("budget_table"), read_table(priv / "budget.csv")
         texts[priv / "budget.md"] = bt.budget_markdown(budget)
