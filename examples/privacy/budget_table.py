@@ -15,9 +15,10 @@ attacker (``-former``: ``--hidden 256 --schedule constant --lr 1e-3``, a grid) w
   with its Wilson 95 % interval over pairs (rows) x maximum epochs (columns), and whether it has levelled off:
   the largest budget re-identifies less than :data:`RISE` (3 points) more than the next smaller pair count at
   the same epochs and the next smaller epoch budget at the same pairs;
-* ``attacker_size.md``: every attacker that is not a grid (the larger and the former ones) against the camera's
-  privacy-table row for the same attack (with ``--table``; else its own grid's point at the same pairs and
-  the most epochs up to its own) and the table's strongest black-box attack, the differences in points;
+* ``attacker_size.md``: every attacker that is not a grid (the larger and the former ones), and the table
+  attacker's grid points trained longer than its table row, against the camera's privacy-table row for the same
+  attack (with ``--table``; else its own grid's point at the same pairs and the most epochs up to its own) and
+  the table's strongest black-box attack, the differences in points;
 * ``budget.png``: re-identification against pairs, one line per maximum epochs, one panel per cell and attack.
 """
 
@@ -139,15 +140,22 @@ def size_rows(rows: list[dict], table: list[dict] | None = None) -> list[dict]:
     """Each attacker that is not a grid (:data:`GRIDS`) beside its reference: the camera's privacy-table row for
     the same attack (``table``: the cameras' rows, 3 seeds averaged) where given, else its own grid's point at the
     same pairs and the most epochs up to its own (a longer-trained attacker's 200 against the grid's 50); and
-    beside the table's strongest black-box attack on that camera."""
+    beside the table's strongest black-box attack on that camera. With ``table``, the table attacker's own grid
+    points at the table's pairs and more epochs than its row (``default, longer``) are set against it too."""
     def grid_point(b: dict) -> dict | None:
         same = [r for r in rows if r["attacker"] == grid_of(b["attacker"]) and r["max_epochs"] <= b["max_epochs"]
                 and all(r[k] == b[k] for k in ("encoder", "embedding", "attack", "n_pairs"))]
         return max(same, key=lambda r: r["max_epochs"], default=None)
 
     table = table or []
+
+    def longer(r: dict) -> bool:  # a point of the table attacker's grid trained longer than the table's row
+        ref = next((t for t in table if all(t[k] == r[k] for k in ("encoder", "embedding", "attack"))), None)
+        return (r["attacker"] == "default" and ref is not None and r["n_pairs"] == ref["n_pairs"]
+                and r["max_epochs"] > ref["max_epochs"])
+
     out = []
-    for b in (r for r in rows if r["attacker"] not in GRIDS):
+    for b in (r for r in rows if r["attacker"] not in GRIDS or longer(r)):
         cam = (b["encoder"], b["embedding"])
         own = [t for t in table if (t["encoder"], t["embedding"]) == cam]
         ref = next((t for t in own if t["attack"] == b["attack"]), None)
@@ -158,7 +166,8 @@ def size_rows(rows: list[dict], table: list[dict] | None = None) -> list[dict]:
             continue
         bb = [t for t in own if t["threat_model"] == "black_box"]
         best = max(bb, key=strength) if bb else None  # ranked as the privacy tables rank attacks
-        out.append({"encoder": cam[0], "embedding": cam[1], "attack": b["attack"], "attacker": b["attacker"],
+        out.append({"encoder": cam[0], "embedding": cam[1], "attack": b["attack"],
+                    "attacker": "default, longer" if b["attacker"] == "default" else b["attacker"],
                     "reference": source,
                     "n_pairs": b["n_pairs"], "max_epochs": b["max_epochs"],
                     "size": ref["attacker_size"], "reid": rate_text(ref), "size_stronger": b["attacker_size"],
