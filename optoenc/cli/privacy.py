@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 from ..errors import ConfigError, DataError
-from ..privacy.settings import ATTACKS, METHODS, ADMMConfig, LearnedConfig, PrivacyConfig, TikhonovConfig
+from ..privacy.settings import ATTACKS, METHODS, SCHEDULES, ADMMConfig, LearnedConfig, PrivacyConfig, TikhonovConfig
 from ..settings import parse_hw
 from ..training.rundir import atomic_torch_save, atomic_write_bytes, write_json
 from .args import command, compose, names, split_overrides
@@ -56,6 +56,12 @@ def add_parsers(sub) -> None:
                    f"{','.join(str(v) for v in PrivacyConfig().plaintext_n)})")
     p.add_argument("--learned-epochs", type=int, help=f"learned attacker's epochs (default {LearnedConfig().epochs})")
     p.add_argument("--learned-pairs", type=int, help=f"learned attacker's training pairs (default {LearnedConfig().pairs})")
+    p.add_argument("--learned-hidden", type=int, help="learned (MLP) attacker's hidden units per layer (default "
+                   f"{LearnedConfig().hidden})")
+    p.add_argument("--learned-schedule", help=f"learned attackers' learning-rate schedule: {', '.join(SCHEDULES)} "
+                   f"(default {LearnedConfig().schedule})")
+    p.add_argument("--learned-lr", type=float, help="learned attackers' Adam learning rate, the peak of one_cycle "
+                   f"(default {LearnedConfig().lr:g})")
     p.add_argument("--attack-seeds", type=int, help="learned attackers: each trained with this many seeds (--seed, "
                    f"--seed + 1, ...), a row the mean over them (default {PrivacyConfig().attack_seeds})")
     p.add_argument("--seed", type=int, help="seed of the sensor noise, the patterns a multi-pattern camera shows, the "
@@ -216,7 +222,8 @@ def _counts(text: str, key: str) -> tuple[int, ...]:
 def _evaluate_kw(args) -> dict:
     pc = PrivacyConfig(**_given(count=args.count, gallery=args.gallery, seed=args.seed, attack_seeds=args.attack_seeds,
                                 plaintext_n=_counts(args.plaintext_n, "--plaintext-n") if args.plaintext_n else None))
-    lc = LearnedConfig(**_given(epochs=args.learned_epochs, pairs=args.learned_pairs))
+    lc = LearnedConfig(**_given(epochs=args.learned_epochs, pairs=args.learned_pairs, hidden=args.learned_hidden,
+                                schedule=args.learned_schedule, lr=args.learned_lr))
     tc = TikhonovConfig(**_given(rcond=args.rcond))
     return {"attacks": tuple(_choices(args.attacks, ATTACKS, "--attacks")), "config": pc, "admm_config": _admm_config(args),
             "learned_config": lc, "linear_config": tc}

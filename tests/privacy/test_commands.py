@@ -50,6 +50,19 @@ def test_attack_seeds_reach_the_privacy_settings():
     assert _evaluate_kw(parse())["config"].attack_seeds == PrivacyConfig().attack_seeds == 3
 
 
+def test_learned_attacker_options_reach_its_settings():
+    """--learned-hidden/-schedule/-lr set the learned attackers (the former attacker: 256 units, constant 1e-3);
+    without them the defaults hold."""
+    from optoenc.cli.main import build_parser
+    from optoenc.cli.privacy import _evaluate_kw
+    from optoenc.privacy.settings import LearnedConfig
+
+    parse = lambda *a: build_parser().parse_known_args(["privacy", "--encoder", "lens", "--out", "x", *a])[0]
+    lc = _evaluate_kw(parse("--learned-hidden", "256", "--learned-schedule", "constant", "--learned-lr", "1e-3"))["learned_config"]
+    assert (lc.hidden, lc.schedule, lc.lr) == (256, "constant", 1e-3)
+    assert _evaluate_kw(parse())["learned_config"] == LearnedConfig()
+
+
 @pytest.mark.parametrize("argv,needle", [
     (["reconstruct", "--encoder", "lens", "--method", "magic", "--out", "x"], "--method"),
     (["reconstruct", "--encoder", "lens"], "--out"),
@@ -59,6 +72,7 @@ def test_attack_seeds_reach_the_privacy_settings():
     (["privacy", "--sweep", "/nonexistent"], "--sweep"),
     (["privacy", "--encoder", "lens", "--match", "*fcnn*", "--out", "x"], "--match"),
     (["privacy", "--encoder", "lens", "--attack-seeds", "0", "--out", "x"], "attack_seeds"),
+    (["privacy", "--encoder", "lens", "--learned-schedule", "cosine", "--out", "x"], "schedule"),
 ])
 def test_errors_are_one_line(argv, needle, capsys):
     assert main(argv) == 2
