@@ -5,7 +5,7 @@ and whether another attacker (wider, or the former attacker's variants) re-ident
 
 DIR holds the budget studies, one CSV per camera and attacker, ``<encoder>-<embedding>[-<attacker>].csv``
 (see :data:`ATTACKERS`): the table's attacker (no ending: a grid of pairs x maximum epochs), the same with
-four times the weights (``-larger``: ``--hidden 2048``, 3.1x the weights at 6x8), and the former table
+twice the width (``-larger``: ``--hidden 2048``, 3.1x the weights at 6x8), and the former table
 attacker (``-former``: ``--hidden 256 --schedule constant --lr 1e-3``, a grid) with its stronger variants
 (``-former-larger``: ``--hidden 1024``; ``-former-longer``: ``--epochs 200``; ``-former-scheduled``:
 ``--schedule one_cycle --lr 3e-3``). Writes into OUT:
@@ -29,7 +29,7 @@ import sys
 from pathlib import Path
 
 from optoenc.privacy.report import COLUMNS, read_table, strength, write_table
-from optoenc.privacy.tables import acc_text, rate_text
+from optoenc.privacy.tables import acc_text, count_text as _n, rate_text
 from optoenc.training.rundir import atomic_write_text
 
 #: The attackers, by the ending of their files' names (after ``<encoder>-<embedding>-``; ``default``: none):
@@ -47,11 +47,6 @@ ATTACKERS = {
 GRIDS = ("default", "former")
 #: budget.csv's columns: the privacy table's and which attacker (a key of :data:`ATTACKERS`).
 BUDGET_COLUMNS = (*COLUMNS, "attacker")
-
-
-def _n(v) -> str:
-    """A count as read back from CSV (a float) written as a whole number."""
-    return str(int(v)) if isinstance(v, float) and v == int(v) else str(v)
 
 
 def attacker(path: Path) -> str:

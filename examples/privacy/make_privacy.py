@@ -38,7 +38,7 @@ from optoenc.privacy import defence
 from optoenc.privacy.report import (COLUMNS, best_per_threat_model, document, read_table, save_frontiers, strength,
                                     write_table)
 from optoenc.privacy.settings import THREAT_MODELS, PrivacyConfig
-from optoenc.privacy.tables import acc_text, csv_text, given, rate_text
+from optoenc.privacy.tables import acc_text, count_text, csv_text, given, rate_text
 from optoenc.training.rundir import atomic_write_text
 
 HERE = Path(__file__).parent
@@ -69,11 +69,6 @@ _RESULTS = _load("make_results")
 ENCODERS, EMBEDDINGS = _RESULTS.ENCODERS, _RESULTS.EMBEDDINGS
 
 
-def _n(v) -> str:
-    """A count as read back from CSV (a float) written as a whole number."""
-    return str(int(float(v))) if float(v) == int(float(v)) else str(v)
-
-
 def _attack(r: dict) -> str:
     return f"{r['attack']} (N={int(float(r['n_pairs']))})" if r["attack"] == "plaintext" else r["attack"]
 
@@ -85,7 +80,7 @@ def headline(best: list[dict], rows: list[dict] = ()) -> str:
     the table is open to him); last the hidden units of the camera's ``learned`` MLP in ``rows`` (its
     ``attacker_size``: 256 the former attacker, constant rate; 1024 the current defaults, one-cycle)."""
     by = {(r["encoder"], r["embedding"], r["threat_model"]): r for r in best}
-    units = {(r["encoder"], r["embedding"]): _n(r["attacker_size"]) for r in rows
+    units = {(r["encoder"], r["embedding"]): count_text(r["attacker_size"]) for r in rows
              if r["attack"] == "learned" and given(r.get("attacker_size"))}
     cells = [(e, s) for e in ENCODERS for s in EMBEDDINGS if any((e, s, t) in by for t in THREAT_MODELS)]
     head = ["encoder", "embedding", "test acc"]

@@ -14,7 +14,7 @@ from typing import Any, Sequence
 
 from ..training.rundir import atomic_write_text
 
-__all__ = ["csv_text", "write_csv", "rate_text", "acc_text", "given"]
+__all__ = ["csv_text", "write_csv", "rate_text", "acc_text", "count_text", "given"]
 
 
 def _fmt(v: Any) -> str:
@@ -56,3 +56,9 @@ def acc_text(r: dict) -> str:
     """The row's test accuracy as ``97.9 %``, ``-`` where it has none."""
     acc = r.get("test_acc", float("nan"))
     return "-" if not given(acc) else f"{100 * float(acc):.1f} %"
+
+
+def count_text(v: Any) -> str:
+    """A count as read back from CSV (a float, ``1024.0``) written as a whole number (``1024``); other values as
+    they are."""
+    return str(int(v)) if isinstance(v, float) and v == int(v) else str(v)
