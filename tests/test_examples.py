@@ -311,8 +311,9 @@ def test_budget_table_says_where_an_attacker_levels_off(tmp_path):
     assert (row["reference"], row["change_pts"]) == ("budget", "+20.0")
     # with the table, the table attacker's grid point at its pairs and 200 epochs is set against the row (+9.0),
     # its 50-epoch points are not (the table's own budget)
-    grid200 = {**_budget_row(55000, 200, 0.45)}
-    (row,) = mod.size_rows([*[{**r, "n_pairs": 55000.0} for r in flat.values()], grid200], table[:2])
+    grid = [_budget_row(p, e, 0.30) for p, e in ((10000, 50), (55000, 50), (55000, 200))]
+    grid[-1]["reid_top1"] = 0.45
+    (row,) = mod.size_rows(grid, table[:2])
     assert (row["attacker"], row["max_epochs"], row["change_pts"]) == ("default, longer", 200.0, "+9.0")
     # both grids are tabled, each under its attacker's name; a file whose ending names no attacker is refused
     text = mod.budget_markdown([*flat.values(), *former])

@@ -9,12 +9,11 @@ for a quick check: ``dataset.train_size=600 dataset.val_size=200 dataset.test_si
 the attacker afresh with early stopping on a validation part of its pairs; the CSV has the privacy table's
 columns (``n_pairs``, ``max_epochs``, ``epochs_run``, ``val_loss``, ``reid_top1`` with its Wilson interval, ...).
 Re-identification has levelled off where a row with more pairs or more epochs re-identifies less than 3 points
-more than the row before it. ``--hidden`` and ``--channels`` size the attackers (the MLP's hidden units, the
-convolutional decoder's first feature map): the check that the table's attacker is not too weak is the same grid
-point with larger attackers (``--hidden 1024 --channels 128``: both four times wider, 6.8x and 5.4x the weights
-at 6x8) changing re-identification by less than 3 points; so is the same attacker with four times the maximum
-epochs (``--epochs 200``), and with a learning-rate schedule (``--schedule one_cycle --lr 3e-3``: warm-up to three
-times the constant rate, then cosine annealing over the 50 epochs). An interrupted study keeps its finished grid
+more than the row before it. The attackers are the library's defaults (the table's attacker) unless
+``--hidden``, ``--channels``, ``--lr`` or ``--schedule`` say otherwise: the check that the table's attacker is
+converged is the same grid point with four times the maximum epochs (``--epochs 200``) or a wider MLP
+(``--hidden 2048``) changing re-identification by less than 3 points; the former table attacker is
+``--hidden 256 --schedule constant --lr 1e-3`` (regenerate.sh names every study). An interrupted study keeps its finished grid
 points in ``OUT.partial/`` and resumes there (removed once the CSV is written).
 """
 

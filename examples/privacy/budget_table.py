@@ -29,14 +29,16 @@ import sys
 from pathlib import Path
 
 from optoenc.privacy.report import COLUMNS, read_table, strength, write_table
+from optoenc.privacy.settings import LearnedConfig
 from optoenc.privacy.tables import acc_text, count_text as _n, rate_text
 from optoenc.training.rundir import atomic_write_text
 
+_TABLE = LearnedConfig()
 #: The attackers, by the ending of their files' names (after ``<encoder>-<embedding>-``; ``default``: none):
 #: the table's attacker, and the former table attacker (the table's attacker before the budget study showed it
 #: still rising at 6x8), each with the settings its rows were trained with (budget_study.py's options).
 ATTACKERS = {
-    "default": "the table's attacker (the defaults: MLP 1024 units, one-cycle schedule to 3e-3)",
+    "default": f"the table's attacker (the defaults: MLP {_TABLE.hidden} units, {_TABLE.schedule} to {_TABLE.lr:g})",
     "larger": "the table's MLP with 2048 units (--hidden 2048, 3.1x the weights at 6x8)",
     "former": "the former attacker (--hidden 256 --schedule constant --lr 1e-3)",
     "former-larger": "the former MLP with 1024 units (--hidden 1024 --schedule constant --lr 1e-3)",
