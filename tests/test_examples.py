@@ -315,6 +315,11 @@ def test_budget_table_says_where_an_attacker_levels_off(tmp_path):
     grid[-1]["reid_top1"] = 0.45
     (row,) = mod.size_rows(grid, table[:2])
     assert (row["attacker"], row["max_epochs"], row["change_pts"]) == ("default, longer", 200.0, "+9.0")
+    # so is another grid's (the standardised attacker's), under its own name
+    (row,) = mod.size_rows([{**r, "attacker": "standardised"} for r in grid], table[:2])
+    assert (row["attacker"], row["change_pts"]) == ("standardised, longer", "+9.0")
+    assert mod.grid_of("standardised") == "standardised" and mod.grid_of("former-larger") == "former"
+    assert mod.grid_of("larger") == "default"
     # both grids are tabled, each under its attacker's name; a file whose ending names no attacker is refused
     text = mod.budget_markdown([*flat.values(), *former])
     assert text.count("**lens 6x8, learned") == 2 and mod.ATTACKERS["former"] in text
@@ -337,9 +342,12 @@ def test_privacy_headline_has_one_line_per_cell_with_each_threat_models_stronges
     assert len(lines) == 3
     assert lines[2] == ("| lens | 6x8 | 73.5 % | admm | 10.0 [8.3, 12.0] | 14.0 | 0.51 | plaintext (N=1000) | "
                         "20.0 [17.6, 22.6] | 14.0 | 0.51 | - | - | - | - | plaintext (N=1000) | 20.0 [17.6, 22.6] | - |")
-    # the last column names the camera's learned MLP's hidden units (which attacker measured the row)
-    mlp = {**row, "threat_model": "black_box", "attack": "learned", "attacker_size": 1024.0}
-    assert mod.headline(best, [*best, mlp]).splitlines()[2].endswith("| 1024 |")
+    # the last column names the camera's learned MLP's hidden units and input scaling (which attacker measured the
+    # row); a table from before the scaling was a setting was standardised
+    mlp = {**row, "threat_model": "black_box", "attack": "learned", "attacker_size": 1024.0, "attacker_inputs": "whiten"}
+    assert mod.headline(best, [*best, mlp]).splitlines()[2].endswith("| 1024 whiten |")
+    old = {k: v for k, v in mlp.items() if k != "attacker_inputs"}
+    assert mod.headline(best, [*best, old]).splitlines()[2].endswith("| 1024 standardise |")
 
 
 def _make_privacy():

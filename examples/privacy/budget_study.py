@@ -10,10 +10,10 @@ the attacker afresh with early stopping on a validation part of its pairs; the C
 columns (``n_pairs``, ``max_epochs``, ``epochs_run``, ``val_loss``, ``reid_top1`` with its Wilson interval, ...).
 Re-identification has levelled off where a row with more pairs or more epochs re-identifies less than 3 points
 more than the row before it. The attackers are the library's defaults (the table's attacker) unless
-``--hidden``, ``--channels``, ``--lr`` or ``--schedule`` say otherwise: the check that the table's attacker is
+``--hidden``, ``--channels``, ``--lr``, ``--schedule`` or ``--inputs`` say otherwise: the check that the table's attacker is
 converged is the same grid point with four times the maximum epochs (``--epochs 200``) or a wider MLP
 (``--hidden 2048``) changing re-identification by less than 3 points; the former table attacker is
-``--hidden 256 --schedule constant --lr 1e-3`` (regenerate.sh names every study). An interrupted study keeps its finished grid
+``--hidden 256 --schedule constant --lr 1e-3 --inputs standardise`` (regenerate.sh names every study). An interrupted study keeps its finished grid
 points in ``OUT.partial/`` and resumes there (removed once the CSV is written).
 """
 
@@ -28,7 +28,7 @@ from optoenc.config import compose, encoder_from_run
 from optoenc.plugins import get_registry
 from optoenc.privacy.budget import budget_study
 from optoenc.privacy.report import load_run, write_table
-from optoenc.privacy.settings import SCHEDULES, LearnedConfig, PrivacyConfig
+from optoenc.privacy.settings import INPUTS, SCHEDULES, LearnedConfig, PrivacyConfig
 
 
 def _ints(text: str) -> tuple[int, ...]:
@@ -55,6 +55,8 @@ def main(argv: list[str] | None = None) -> Path:
                    "(one_cycle: its peak)")
     p.add_argument("--schedule", default=LearnedConfig().schedule, choices=SCHEDULES,
                    help="the attackers' learning-rate schedule")
+    p.add_argument("--inputs", default=LearnedConfig().inputs, choices=INPUTS,
+                   help="the attackers' input scaling")
     p.add_argument("overrides", nargs="*", help="section.key=value settings of the run")
     args = p.parse_args(argv)
     if args.run:
@@ -69,7 +71,7 @@ def main(argv: list[str] | None = None) -> Path:
         encoder, splits, _ints(args.pairs), _ints(args.epochs), tuple(a for a in args.attacks.split(",") if a),
         config=PrivacyConfig(count=args.probes, gallery=args.gallery, attack_seeds=args.seeds),
         learned_config=LearnedConfig(patience=args.patience, hidden=args.hidden, channels=args.channels, lr=args.lr,
-                                     schedule=args.schedule), cache_root=run.trainer.cache_dir,
+                                     schedule=args.schedule, inputs=args.inputs), cache_root=run.trainer.cache_dir,
         progress=lambda msg: print(f"  {msg} ...", file=sys.stderr), label=label, test_acc=acc,
         resume_dir=partial,
     )

@@ -5,13 +5,14 @@ and whether another attacker (wider, or the former attacker's variants) re-ident
 
 DIR holds the budget studies, one CSV per camera and attacker, ``<encoder>-<embedding>[-<attacker>].csv``
 (see :data:`ATTACKERS`): the table's attacker (no ending: a grid of pairs x maximum epochs), the same with
-twice the width (``-larger``: ``--hidden 2048``, 3.1x the weights at 6x8), and the former table
-attacker (``-former``: ``--hidden 256 --schedule constant --lr 1e-3``, a grid) with its stronger variants
-(``-former-larger``: ``--hidden 1024``; ``-former-longer``: ``--epochs 200``; ``-former-scheduled``:
+twice the width (``-larger``: ``--hidden 2048``, 3.1x the weights at 6x8), the same with scalar standardisation
+instead of whitening (``-standardised``: ``--inputs standardise``, a grid), and the former table attacker
+(``-former``: ``--hidden 256 --schedule constant --lr 1e-3 --inputs standardise``, a grid) with its stronger
+variants (``-former-larger``: ``--hidden 1024``; ``-former-longer``: ``--epochs 200``; ``-former-scheduled``:
 ``--schedule one_cycle --lr 3e-3``). Writes into OUT:
 
 * ``budget.csv``: every row of every study, with ``attacker`` the file's ending (``default`` for none);
-* ``budget.md``: per grid (the table's and the former attacker's), cell and attack, re-identification top-1 [%]
+* ``budget.md``: per grid (the table's, the standardised and the former attacker's), cell and attack, re-identification top-1 [%]
   with its Wilson 95 % interval over pairs (rows) x maximum epochs (columns), and whether it has levelled off:
   the largest budget re-identifies less than :data:`RISE` (3 points) more than the next smaller pair count at
   the same epochs and the next smaller epoch budget at the same pairs;
@@ -37,16 +38,20 @@ _TABLE = LearnedConfig()
 #: The attackers, by the ending of their files' names (after ``<encoder>-<embedding>-``; ``default``: none):
 #: the table's attacker, and the former table attacker (the table's attacker before the budget study showed it
 #: still rising at 6x8), each with the settings its rows were trained with (budget_study.py's options).
+_FORMER = "--schedule constant --lr 1e-3 --inputs standardise"
 ATTACKERS = {
-    "default": f"the table's attacker (the defaults: MLP {_TABLE.hidden} units, {_TABLE.schedule} to {_TABLE.lr:g})",
+    "default": f"the table's attacker (the defaults: MLP {_TABLE.hidden} units, {_TABLE.schedule} to {_TABLE.lr:g}, "
+               f"inputs {_TABLE.inputs})",
     "larger": "the table's MLP with 2048 units (--hidden 2048, 3.1x the weights at 6x8)",
-    "former": "the former attacker (--hidden 256 --schedule constant --lr 1e-3)",
-    "former-larger": "the former MLP with 1024 units (--hidden 1024 --schedule constant --lr 1e-3)",
-    "former-longer": "the former attacker, at most 200 epochs (--hidden 256 --schedule constant --lr 1e-3 --epochs 200)",
-    "former-scheduled": "the former attacker with the one-cycle schedule (--hidden 256 --schedule one_cycle --lr 3e-3)",
+    "standardised": "the table's attacker with scalar standardisation instead of whitening (--inputs standardise)",
+    "former": f"the former attacker (--hidden 256 {_FORMER})",
+    "former-larger": f"the former MLP with 1024 units (--hidden 1024 {_FORMER})",
+    "former-longer": f"the former attacker, at most 200 epochs (--hidden 256 {_FORMER} --epochs 200)",
+    "former-scheduled": "the former attacker with the one-cycle schedule (--hidden 256 --schedule one_cycle --lr 3e-3 "
+                        "--inputs standardise)",
 }
 #: The attackers studied over a grid of pairs x epochs (the others are single points set against the table).
-GRIDS = ("default", "former")
+GRIDS = ("default", "standardised", "former")
 #: budget.csv's columns: the privacy table's and which attacker (a key of :data:`ATTACKERS`).
 BUDGET_COLUMNS = (*COLUMNS, "attacker")
 
@@ -66,8 +71,10 @@ def attacker(path: Path) -> str:
 
 
 def grid_of(kind: str) -> str:
-    """The grid an attacker belongs to: ``former`` for the former attacker's variants, else ``default``."""
-    return "former" if kind.startswith("former") else "default"
+    """The grid an attacker belongs to: a grid's own name for it and its variants (``former-larger``: ``former``),
+    else ``default``."""
+    head = kind.split("-")[0]
+    return head if head in GRIDS else "default"
 
 
 def load(folder: Path) -> list[dict]:
@@ -137,8 +144,9 @@ def size_rows(rows: list[dict], table: list[dict] | None = None) -> list[dict]:
     """Each attacker that is not a grid (:data:`GRIDS`) beside its reference: the camera's privacy-table row for
     the same attack (``table``: the cameras' rows, 3 seeds averaged) where given, else its own grid's point at the
     same pairs and the most epochs up to its own (a longer-trained attacker's 200 against the grid's 50); and
-    beside the table's strongest black-box attack on that camera. With ``table``, the table attacker's own grid
-    points at the table's pairs and more epochs than its row (``default, longer``) are set against it too."""
+    beside the table's strongest black-box attack on that camera. With ``table``, the grids' points at the table's
+    pairs and more epochs than its row (``<grid>, longer``, e.g. ``default, longer``: the table's attacker trained
+    longer) are set against it too."""
     def grid_point(b: dict) -> dict | None:
         same = [r for r in rows if r["attacker"] == grid_of(b["attacker"]) and r["max_epochs"] <= b["max_epochs"]
                 and all(r[k] == b[k] for k in ("encoder", "embedding", "attack", "n_pairs"))]
@@ -146,9 +154,9 @@ def size_rows(rows: list[dict], table: list[dict] | None = None) -> list[dict]:
 
     table = table or []
 
-    def longer(r: dict) -> bool:  # a point of the table attacker's grid trained longer than the table's row
+    def longer(r: dict) -> bool:  # a grid's point trained longer than the table's row
         ref = next((t for t in table if all(t[k] == r[k] for k in ("encoder", "embedding", "attack"))), None)
-        return (r["attacker"] == "default" and ref is not None and r["n_pairs"] == ref["n_pairs"]
+        return (r["attacker"] in GRIDS and ref is not None and r["n_pairs"] == ref["n_pairs"]
                 and r["max_epochs"] > ref["max_epochs"])
 
     out = []
@@ -164,7 +172,7 @@ def size_rows(rows: list[dict], table: list[dict] | None = None) -> list[dict]:
         bb = [t for t in own if t["threat_model"] == "black_box"]
         best = max(bb, key=strength) if bb else None  # ranked as the privacy tables rank attacks
         out.append({"encoder": cam[0], "embedding": cam[1], "attack": b["attack"],
-                    "attacker": "default, longer" if b["attacker"] == "default" else b["attacker"],
+                    "attacker": f"{b['attacker']}, longer" if b["attacker"] in GRIDS else b["attacker"],
                     "reference": source,
                     "n_pairs": b["n_pairs"], "max_epochs": b["max_epochs"],
                     "size": ref["attacker_size"], "reid": rate_text(ref), "size_stronger": b["attacker_size"],

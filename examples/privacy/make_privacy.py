@@ -77,16 +77,17 @@ def headline(best: list[dict], rows: list[dict] = ()) -> str:
     """One line per encoder and embedding: test accuracy, then per threat model its strongest attack, its
     re-identification top-1 with the Wilson 95 % interval, PSNR and SSIM; then the strongest of them all (what an
     attacker who knows the mask can reach: the mask lets him simulate any number of pairs, so every attack of
-    the table is open to him); last the hidden units of the camera's ``learned`` MLP in ``rows`` (its
-    ``attacker_size``: 256 the former attacker, constant rate; 1024 the current defaults, one-cycle)."""
+    the table is open to him); last which MLP attacked the camera in ``rows``: its hidden units and input scaling
+    (``attacker_size``, ``attacker_inputs``; 256 standardise the former attacker, constant rate; 1024 whiten the
+    current defaults, one-cycle; a table without ``attacker_inputs`` predates whitening: standardise)."""
     by = {(r["encoder"], r["embedding"], r["threat_model"]): r for r in best}
-    units = {(r["encoder"], r["embedding"]): count_text(r["attacker_size"]) for r in rows
-             if r["attack"] == "learned" and given(r.get("attacker_size"))}
+    units = {(r["encoder"], r["embedding"]): f"{count_text(r['attacker_size'])} {r.get('attacker_inputs') or 'standardise'}"
+             for r in rows if r["attack"] == "learned" and given(r.get("attacker_size"))}
     cells = [(e, s) for e in ENCODERS for s in EMBEDDINGS if any((e, s, t) in by for t in THREAT_MODELS)]
     head = ["encoder", "embedding", "test acc"]
     for t in THREAT_MODELS:
         head += [f"{t}: attack", "re-id [%] (95 % CI)", "PSNR [dB]", "SSIM"]
-    head += ["strongest of all", "re-id [%] (95 % CI)", "MLP units"]
+    head += ["strongest of all", "re-id [%] (95 % CI)", "MLP (units, inputs)"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for enc, emb in cells:
         mine = [by[(enc, emb, t)] for t in THREAT_MODELS if (enc, emb, t) in by]

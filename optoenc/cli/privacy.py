@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 from ..errors import ConfigError, DataError
-from ..privacy.settings import ATTACKS, METHODS, SCHEDULES, ADMMConfig, LearnedConfig, PrivacyConfig, TikhonovConfig
+from ..privacy.settings import ATTACKS, INPUTS, METHODS, SCHEDULES, ADMMConfig, LearnedConfig, PrivacyConfig, TikhonovConfig
 from ..settings import parse_hw
 from ..training.rundir import atomic_torch_save, atomic_write_bytes, write_json
 from .args import command, compose, names, split_overrides
@@ -62,6 +62,8 @@ def add_parsers(sub) -> None:
                    f"(default {LearnedConfig().schedule})")
     p.add_argument("--learned-lr", type=float, help="learned attackers' Adam learning rate, the peak of one_cycle "
                    f"(default {LearnedConfig().lr:g})")
+    p.add_argument("--learned-inputs", help=f"learned attackers' input scaling: {', '.join(INPUTS)} "
+                   f"(default {LearnedConfig().inputs})")
     p.add_argument("--attack-seeds", type=int, help="learned attackers: each trained with this many seeds (--seed, "
                    f"--seed + 1, ...), a row the mean over them (default {PrivacyConfig().attack_seeds})")
     p.add_argument("--seed", type=int, help="seed of the sensor noise, the patterns a multi-pattern camera shows, the "
@@ -223,7 +225,7 @@ def _evaluate_kw(args) -> dict:
     pc = PrivacyConfig(**_given(count=args.count, gallery=args.gallery, seed=args.seed, attack_seeds=args.attack_seeds,
                                 plaintext_n=_counts(args.plaintext_n, "--plaintext-n") if args.plaintext_n else None))
     lc = LearnedConfig(**_given(epochs=args.learned_epochs, pairs=args.learned_pairs, hidden=args.learned_hidden,
-                                schedule=args.learned_schedule, lr=args.learned_lr))
+                                schedule=args.learned_schedule, lr=args.learned_lr, inputs=args.learned_inputs))
     tc = TikhonovConfig(**_given(rcond=args.rcond))
     return {"attacks": tuple(_choices(args.attacks, ATTACKS, "--attacks")), "config": pc, "admm_config": _admm_config(args),
             "learned_config": lc, "linear_config": tc}

@@ -33,7 +33,7 @@ from torch import nn
 
 from .settings import ATTACKS, LEARNED, THREAT_MODEL, LearnedConfig
 from ..encoders.operator import SceneOperator
-from .inverters import FitReport, build, fit
+from .inverters import FitReport, build, fit, scaling
 from .operators import DTYPE
 
 __all__ = ["ATTACKS", "LEARNED", "THREAT_MODEL", "LearnedConfig", "train_inverter", "estimate_operator",
@@ -45,6 +45,8 @@ PLAINTEXT_RIDGE = 1e-3
 #: The relative ridge weights the plaintext attacker chooses among, and the most pairs it holds out to choose.
 PLAINTEXT_RIDGES = (1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)
 PLAINTEXT_HOLDOUT = 200
+#: Seed offset of the noise draw a learned attacker's input scaling is fitted to (apart from its training draws).
+_SCALING_SEED = 7919
 
 
 def train_inverter(clean: torch.Tensor, scenes: torch.Tensor, noise: Callable[[torch.Tensor, torch.Generator], torch.Tensor],
@@ -52,7 +54,10 @@ def train_inverter(clean: torch.Tensor, scenes: torch.Tensor, noise: Callable[[t
     """Train a learned attacker on noise-free embeddings ``clean`` of ``scenes`` (noise drawn per epoch).
 
     The first ``config.pairs`` pairs are used, a fraction of them held out to validate (early stopping,
-    :func:`optoenc.privacy.inverters.fit`).
+    :func:`optoenc.privacy.inverters.fit`). The network's input scaling (``config.inputs``,
+    :func:`optoenc.privacy.inverters.scaling`; embeddings only, no scenes) is fitted to all of them: whitening
+    to one noise draw (the noise bounds the covariance's small eigenvalues), standardisation to the noise-free
+    embeddings.
 
     Args:
         clean: ``(N, C, a, b)`` noise-free embeddings of the training scenes.
@@ -66,8 +71,10 @@ def train_inverter(clean: torch.Tensor, scenes: torch.Tensor, noise: Callable[[t
     """
     cfg = config or LearnedConfig()
     clean, scenes = clean[: cfg.pairs].float(), scenes[: cfg.pairs].float()
+    sample = clean if cfg.inputs == "standardise" else noise(clean, torch.Generator().manual_seed(_SCALING_SEED + seed))
+    inputs = scaling(sample, cfg.inputs)
     torch.manual_seed(seed)
-    model = build(kind, tuple(clean.shape[1:]), tuple(scenes.shape[1:]), cfg, float(clean.mean()), float(clean.std()))
+    model = build(kind, tuple(clean.shape[1:]), tuple(scenes.shape[1:]), cfg, inputs)
     report = fit(model, clean, scenes, noise, cfg, seed)
     return model, report
 

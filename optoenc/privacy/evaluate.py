@@ -188,7 +188,7 @@ def learned_attack(tgt: Target, name: str, train_scenes: torch.Tensor, learned_c
     Returns:
         ``(one reconstruction per seed, the row's budget columns)``: ``n_pairs`` (pairs, validation included),
         ``val_pairs``, ``max_epochs``, ``epochs_run`` (per seed, ``;``-joined), ``val_loss`` (mean over seeds of
-        the kept state's validation loss), ``attack_seeds``.
+        the kept state's validation loss), ``attack_seeds``, ``attacker_size``, ``attacker_inputs``.
     """
     lc = learned_config or LearnedConfig()
     k = min(lc.pairs, len(train_scenes))
@@ -207,7 +207,7 @@ def learned_attack(tgt: Target, name: str, train_scenes: torch.Tensor, learned_c
     budget = {"n_pairs": k, "val_pairs": reports[0].val_pairs, "max_epochs": lc.epochs,
               "epochs_run": ";".join(str(r.epochs_run) for r in reports),
               "val_loss": sum(r.val_loss for r in reports) / len(reports), "attack_seeds": len(reports),
-              "attacker_size": lc.channels if LEARNED[name] == "conv" else lc.hidden}
+              "attacker_size": lc.channels if LEARNED[name] == "conv" else lc.hidden, "attacker_inputs": lc.inputs}
     return recons, budget
 
 

@@ -1,12 +1,15 @@
 """The learned attackers' inversion networks and their training (validation split, early stopping).
 
-* :class:`Inverter` (attack ``learned``): an MLP, standardised embedding -> 2 hidden ReLU layers -> scene.
+* :class:`Inverter` (attack ``learned``): an MLP, scaled embedding -> 2 hidden ReLU layers -> scene.
 * :class:`ConvInverter` (attack ``learned_conv``): the decoder family of the follow-up work (Bezzam et al.):
   a fully connected layer to a small feature map, then stride-2 transposed convolutions up to the scene
   size (cropped to it when the scene's sides are not multiples of the upsampling), a 3x3 convolution to the
   scene channels.
 
-Both end in a sigmoid (scenes lie in [0, 1]). :func:`fit` trains either on (noisy embedding, scene) pairs:
+Both start from the embedding scaled by :func:`scaling` (whitened by default: the training embeddings' mean
+removed and their covariance made the identity, which leaves the attacker's optimisation as well conditioned
+on a camera with strongly correlated pixels, a coded aperture, as on a lens) and end in a sigmoid (scenes lie
+in [0, 1]). :func:`fit` trains either on (noisy embedding, scene) pairs:
 a held-out fraction of the pairs (fixed noise draw) gives the validation loss after every epoch, training
 with a constant rate stops when it has not improved for ``patience`` epochs (a one-cycle schedule runs to its
 end), and the state of the best epoch is restored.
@@ -25,13 +28,19 @@ from torch import nn
 from ..errors import ConfigError
 from .settings import LearnedConfig
 
-__all__ = ["Inverter", "ConvInverter", "FitReport", "build", "fit", "device", "NETWORKS"]
+__all__ = ["Inverter", "ConvInverter", "FitReport", "build", "fit", "device", "scaling", "NETWORKS", "WHITEN_FLOOR"]
 
 #: Network kinds (:data:`optoenc.privacy.settings.LEARNED` maps each learned attack to one).
 NETWORKS = ("mlp", "conv")
 #: Largest side of the convolutional decoder's first feature map: the number of upsamplings follows from it.
 _MAX_FEATURE_SIDE = 8
 _MIN_CHANNELS = 8
+#: Whitening: covariance eigenvalues below this fraction of their mean are raised to it, so directions the
+#: embeddings do not vary along (fewer pairs than pixels, a noise-free camera) are amplified at most
+#: ``1 / sqrt(WHITEN_FLOOR)`` times more than a typical one instead of without bound.
+WHITEN_FLOOR = 1e-6
+#: Embeddings per chunk when their covariance is accumulated (float64).
+_CHUNK = 4096
 
 
 def _numel(shape) -> int:
@@ -39,9 +48,9 @@ def _numel(shape) -> int:
 
 
 class _Standardise(nn.Module):
-    """``(y - mean) / std`` with the training embeddings' scalar mean and standard deviation, then flattened."""
+    """``(y - mean) / std`` with one scalar mean and standard deviation, then flattened."""
 
-    def __init__(self, mean: float, std: float):
+    def __init__(self, mean: float = 0.0, std: float = 1.0):
         super().__init__()
         self.register_buffer("mean", torch.tensor(float(mean)))
         self.register_buffer("std", torch.tensor(float(std) or 1.0))
@@ -50,14 +59,53 @@ class _Standardise(nn.Module):
         return ((y.float() - self.mean) / self.std).flatten(1)
 
 
-class Inverter(nn.Module):
-    """MLP from a standardised embedding to a scene in [0, 1] (sigmoid output)."""
+class _Whiten(nn.Module):
+    """``(y - mean) @ matrix`` on the flattened embedding: ``mean`` a vector, ``matrix`` symmetric."""
 
-    def __init__(self, in_shape: tuple[int, ...], out_shape: tuple[int, ...], hidden: int, mean: float, std: float):
+    def __init__(self, mean: torch.Tensor, matrix: torch.Tensor):
+        super().__init__()
+        self.register_buffer("mean", mean.float())
+        self.register_buffer("matrix", matrix.float())
+
+    def forward(self, y: torch.Tensor) -> torch.Tensor:
+        return (y.float().flatten(1) - self.mean) @ self.matrix
+
+
+@torch.no_grad()
+def scaling(embeddings: torch.Tensor, how: str = "whiten") -> nn.Module:
+    """The input scaling of an attacker fitted to its training ``embeddings`` ``(N, ...)`` (with sensor noise).
+
+    ``standardise``: one scalar mean and standard deviation. ``whiten`` (ZCA): ``(y - m) C^(-1/2)`` with the
+    embeddings' mean vector ``m`` and covariance ``C`` (its eigenvalues floored at :data:`WHITEN_FLOOR` times
+    their mean), so the scaled embeddings have zero mean and identity covariance. Either output is flat:
+    ``(N, prod(embedding shape))``.
+    """
+    if how == "standardise":
+        return _Standardise(float(embeddings.mean()), float(embeddings.std()))
+    if how != "whiten":
+        raise ConfigError("learned attacker inputs", how, "whiten or standardise")
+    flat = embeddings.reshape(len(embeddings), -1)
+    n, d = flat.shape
+    mean = flat.double().mean(0)
+    cov = torch.zeros(d, d, dtype=torch.float64)
+    for i in range(0, n, _CHUNK):
+        c = flat[i : i + _CHUNK].double() - mean
+        cov += c.T @ c
+    lam, vec = torch.linalg.eigh(cov / max(n - 1, 1))
+    lam = lam.clamp_min(WHITEN_FLOOR * float(lam.clamp_min(0).mean()) or 1.0)
+    return _Whiten(mean, (vec * lam.rsqrt()) @ vec.T)
+
+
+class Inverter(nn.Module):
+    """MLP from a scaled embedding (``inputs``, :func:`scaling`; none: as it is) to a scene in [0, 1] (sigmoid
+    output)."""
+
+    def __init__(self, in_shape: tuple[int, ...], out_shape: tuple[int, ...], hidden: int,
+                 inputs: nn.Module | None = None):
         super().__init__()
         n_in, n_out = _numel(in_shape), _numel(out_shape)
         self.out_shape = tuple(int(s) for s in out_shape)
-        self.inp = _Standardise(mean, std)
+        self.inp = inputs if inputs is not None else _Standardise()
         self.net = nn.Sequential(
             nn.Linear(n_in, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, n_out), nn.Sigmoid(),
         )
@@ -75,13 +123,14 @@ class ConvInverter(nn.Module):
     scene gets two upsamplings from 7 x 7 (exact, no crop), as in the follow-up work's MNIST decoder.
     """
 
-    def __init__(self, in_shape: tuple[int, ...], out_shape: tuple[int, int, int], channels: int, mean: float, std: float):
+    def __init__(self, in_shape: tuple[int, ...], out_shape: tuple[int, int, int], channels: int,
+                 inputs: nn.Module | None = None):
         super().__init__()
         S, h, w = (int(s) for s in out_shape)
         self.out_shape = (S, h, w)
         ups = max(1, math.ceil(math.log2(max(h, w) / _MAX_FEATURE_SIDE)))
         self.feature = (int(channels), math.ceil(h / 2**ups), math.ceil(w / 2**ups))
-        self.inp = _Standardise(mean, std)
+        self.inp = inputs if inputs is not None else _Standardise()
         self.fc = nn.Sequential(nn.Linear(_numel(in_shape), _numel(self.feature)), nn.ReLU())
         layers, c = [], int(channels)
         for _ in range(ups):
@@ -101,14 +150,15 @@ class ConvInverter(nn.Module):
 
 
 def build(kind: str, in_shape: tuple[int, ...], out_shape: tuple[int, ...], config: LearnedConfig,
-          mean: float = 0.0, std: float = 1.0) -> nn.Module:
-    """A fresh network of ``kind`` (``mlp`` or ``conv``) from embeddings ``in_shape`` to scenes ``out_shape``."""
+          inputs: nn.Module | None = None) -> nn.Module:
+    """A fresh network of ``kind`` (``mlp`` or ``conv``) from embeddings ``in_shape`` to scenes ``out_shape``,
+    starting with the input scaling ``inputs`` (:func:`scaling`; none: the embedding as it is)."""
     if kind == "mlp":
-        return Inverter(in_shape, out_shape, config.hidden, mean, std)
+        return Inverter(in_shape, out_shape, config.hidden, inputs)
     if kind == "conv":
         if len(out_shape) != 3:
             raise ConfigError("scene shape", tuple(out_shape), "must be (channels, height, width) for learned_conv")
-        return ConvInverter(in_shape, tuple(out_shape), config.channels, mean, std)
+        return ConvInverter(in_shape, tuple(out_shape), config.channels, inputs)
     raise ConfigError("network", kind, f"one of {', '.join(NETWORKS)}")
 
 

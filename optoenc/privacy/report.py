@@ -36,17 +36,19 @@ __all__ = [
 #: (:data:`~optoenc.privacy.settings.THREAT_MODEL`); ``n_pairs``: the attacker's (scene, embedding) pairs
 #: (plaintext, learned: validation part included); the learned attackers' budget ``val_pairs``,
 #: ``max_epochs``, ``epochs_run`` (per seed), their mean final ``val_loss``, ``attack_seeds``, ``attacker_size``
-#: (the MLP's hidden units, the convolutional decoder's first channels) and each seed's re-identification
+#: (the MLP's hidden units, the convolutional decoder's first channels), ``attacker_inputs`` (their input scaling,
+#: :data:`~optoenc.privacy.settings.INPUTS`; empty in tables from before it was a setting: standardise) and each
+#: seed's re-identification
 #: ``reid_seeds``; rates with their binomial standard error (``_se``) and Wilson 95 %
 #: interval (``_ci_low``, ``_ci_high``); ``count``: probes.
 COLUMNS = (
     "encoder", "embedding", "threat_model", "attack", "n_pairs", "val_pairs", "max_epochs", "epochs_run", "val_loss",
-    "attack_seeds", "attacker_size", "psnr", "psnr_std", "ssim", "ssim_std", "readability", "readability_se", "readability_ci_low",
+    "attack_seeds", "attacker_size", "attacker_inputs", "psnr", "psnr_std", "ssim", "ssim_std", "readability", "readability_se", "readability_ci_low",
     "readability_ci_high", "reid_top1", "reid_top1_se", "reid_ci_low", "reid_ci_high", "reid_seeds", "test_acc",
     "count", "run",
 )
 #: Columns read back as text.
-_TEXT = ("encoder", "embedding", "threat_model", "attack", "run", "epochs_run", "reid_seeds")
+_TEXT = ("encoder", "embedding", "threat_model", "attack", "run", "epochs_run", "reid_seeds", "attacker_inputs")
 PRIVACY_DIR = "privacy"
 #: Sub-folder of a run's privacy folder holding its finished attacks until the table is written.
 PARTIAL_DIR = "partial"

@@ -11,7 +11,7 @@ from ..settings import Settings, setting
 
 __all__ = [
     "ADMMConfig", "TikhonovConfig", "LearnedConfig", "PrivacyConfig", "ATTACKS", "LEARNED", "METHODS", "THREAT_MODELS",
-    "THREAT_MODEL", "LOSSES", "SCHEDULES",
+    "THREAT_MODEL", "LOSSES", "SCHEDULES", "INPUTS",
 ]  # fmt: skip
 
 #: Attack names, in table order.
@@ -32,6 +32,8 @@ THREAT_MODEL = {
 LOSSES = ("mse", "l1")
 #: Learning-rate schedules of the learned attackers.
 SCHEDULES = ("constant", "one_cycle")
+#: How the learned attackers scale embeddings before their network (:func:`optoenc.privacy.inverters.scaling`).
+INPUTS = ("whiten", "standardise")
 #: Reconstruction methods of `optoenc reconstruct`.
 METHODS = ("admm", "tikhonov", "pinv")
 
@@ -60,9 +62,10 @@ class LearnedConfig(Settings):
     feature map, then transposed convolutions), trained on (embedding, scene) pairs of the training split with a
     held-out validation part and early stopping (the state of the best validation loss is kept).
 
-    The defaults (MLP 1024 units, one-cycle schedule to 3e-3) had the lowest validation loss of the attackers
-    tried on the fixed LCD 6x8 camera, where the former default (256 units, constant 1e-3) was furthest from
-    converged (docs/privacy.md, "Are the attackers converged?")."""
+    The defaults had the lowest validation loss of the attackers tried: MLP 1024 units with a one-cycle schedule to
+    3e-3 on the fixed LCD 6x8 camera, where the former default (256 units, constant 1e-3) was furthest from
+    converged; whitened inputs on the coded aperture 24x32, whose pixels are strongly correlated (docs/privacy.md,
+    "Are the attackers converged?")."""
 
     pairs: int = setting(60000, "(embedding, scene) pairs from the training split, validation part included "
                          "(at most the split's size)", ge=2)
@@ -79,6 +82,9 @@ class LearnedConfig(Settings):
     schedule: str = setting("one_cycle", "learning rate over training: constant, or one_cycle (torch's OneCycleLR "
                             "over `epochs`: 5 % warm-up to `lr`, cosine annealing to lr / 2.5e5)", choices=SCHEDULES)
     batch_size: int = setting(128, "pairs per optimiser step", ge=1)
+    inputs: str = setting("whiten", "how embeddings are scaled before the network: whiten (minus the training "
+                          "embeddings' mean, times the inverse square root of their covariance) or standardise (one "
+                          "scalar mean and standard deviation)", choices=INPUTS)
     device: str = setting("auto", "where the attackers train: auto (cuda when available, else cpu), cpu or cuda "
                           "(the sensor noise is drawn on the CPU either way)", choices=("auto", "cpu", "cuda"))
 

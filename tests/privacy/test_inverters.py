@@ -135,3 +135,71 @@ def test_device_choice():
     if not torch.cuda.is_available():
         with pytest.raises(ConfigError, match="cuda"):
             device(LearnedConfig(device="cuda"))
+
+
+def _correlated(n: int, d: int, seed: int, condition: float = 1e3) -> torch.Tensor:
+    """``n`` embeddings of ``d`` pixels with an offset and a covariance of condition number ``condition**2``:
+    ``z A + 5`` with ``A`` a random rotation times singular values log-spaced from 1 to ``1 / condition``."""
+    g = torch.Generator().manual_seed(seed)
+    q, _ = torch.linalg.qr(torch.randn(d, d, generator=g, dtype=torch.float64))
+    s = torch.logspace(0, -torch.log10(torch.tensor(condition)).item(), d, dtype=torch.float64)
+    return torch.randn(n, d, generator=g, dtype=torch.float64) @ (s[:, None] * q) + 5.0
+
+
+def test_whitening_gives_zero_mean_and_identity_covariance():
+    """The whitened fitted embeddings: mean 0 and covariance I, although the embeddings' covariance spans six
+    decades. Tolerances: the matrix is applied in float32 (relative 1e-7) to inputs of size ~5 with directions
+    scaled up 1e3 times, so 1e-3 absolute on a unit covariance."""
+    from optoenc.privacy.inverters import scaling
+
+    y = _correlated(4000, 12, seed=1).reshape(4000, 3, 4)
+    out = scaling(y.float(), "whiten")(y.float()).double()
+    assert out.shape == (4000, 12)
+    assert out.mean(0).abs().max() < 1e-3
+    assert torch.allclose(torch.cov(out.T), torch.eye(12, dtype=torch.float64), atol=1e-3)
+    # The scaling is linear and keeps what distinguishes embeddings: it is invertible on them.
+    flat = y.reshape(4000, -1)
+    assert torch.linalg.matrix_rank(out - out.mean(0)) == torch.linalg.matrix_rank(flat - flat.mean(0)) == 12
+
+
+def test_whitening_floor_bounds_the_gain_along_directions_without_variance():
+    """Fewer embeddings than pixels (rank 5 of 12): the covariance's zero eigenvalues are raised to WHITEN_FLOOR times
+    their mean, so the scaling's largest gain is 1 / sqrt(floor * mean eigenvalue), finite, not the inverse of 0."""
+    from optoenc.privacy.inverters import WHITEN_FLOOR, scaling
+
+    y = _correlated(6, 12, seed=2, condition=1.0).float()
+    m = scaling(y, "whiten")
+    assert torch.isfinite(m.matrix).all()
+    lam = torch.linalg.eigvalsh(torch.cov(y.double().T))
+    bound = (WHITEN_FLOOR * float(lam.clamp_min(0).mean())) ** -0.5
+    assert float(torch.linalg.matrix_norm(m.matrix.double(), 2)) == pytest.approx(bound, rel=1e-3)
+
+
+def test_standardise_is_one_scalar_mean_and_deviation():
+    from optoenc.privacy.inverters import scaling
+
+    y = _correlated(500, 6, seed=3).float().reshape(500, 2, 3)
+    out = scaling(y, "standardise")(y)
+    assert out.shape == (500, 6)
+    assert torch.allclose(out, ((y - y.mean()) / y.std()).reshape(500, 6), atol=1e-5)
+    with pytest.raises(ConfigError, match="inputs"):
+        scaling(y, "pca")
+
+
+def test_whitened_attacker_learns_an_ill_conditioned_camera_faster():
+    """A camera whose pixels are strongly correlated (a linear operator with singular values over three decades,
+    as a coded aperture's are): with the same network, budget and seed the whitened attacker's validation loss
+    ends below half the standardised one's. Measured on this problem: 0.003 against 0.05 (0.06x), so
+    a factor 2 leaves a wide margin for a different torch's arithmetic and still fails if whitening is not applied."""
+    g = torch.Generator().manual_seed(7)
+    scenes = torch.rand(3000, 1, 4, 4, generator=g)
+    u, _ = torch.linalg.qr(torch.randn(16, 16, generator=g, dtype=torch.float64))
+    v, _ = torch.linalg.qr(torch.randn(16, 16, generator=g, dtype=torch.float64))
+    A = u @ torch.diag(torch.logspace(0, -3, 16, dtype=torch.float64)) @ v  # singular values 1 .. 1e-3
+    clean = (scenes.reshape(3000, 16).double() @ A.T + 0.2).float().reshape(3000, 1, 4, 4)
+    noise = lambda c, gen: c + 1e-4 * torch.randn(c.shape, generator=gen)  # noqa: E731
+    losses = {}
+    for how in ("whiten", "standardise"):
+        cfg = LearnedConfig(epochs=8, hidden=64, batch_size=64, inputs=how)
+        losses[how] = train_inverter(clean, scenes, noise, cfg, seed=0)[1].val_loss
+    assert losses["whiten"] < 0.5 * losses["standardise"], losses
