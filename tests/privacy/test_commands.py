@@ -58,8 +58,9 @@ def test_learned_attacker_options_reach_its_settings():
     from optoenc.privacy.settings import LearnedConfig
 
     parse = lambda *a: build_parser().parse_known_args(["privacy", "--encoder", "lens", "--out", "x", *a])[0]
-    lc = _evaluate_kw(parse("--learned-hidden", "256", "--learned-schedule", "constant", "--learned-lr", "1e-3"))["learned_config"]
-    assert (lc.hidden, lc.schedule, lc.lr) == (256, "constant", 1e-3)
+    lc = _evaluate_kw(parse("--learned-hidden", "256", "--learned-schedule", "constant", "--learned-lr", "1e-3",
+                            "--learned-inputs", "standardise"))["learned_config"]
+    assert (lc.hidden, lc.schedule, lc.lr, lc.inputs) == (256, "constant", 1e-3, "standardise")
     assert _evaluate_kw(parse())["learned_config"] == LearnedConfig()
 
 
@@ -73,6 +74,7 @@ def test_learned_attacker_options_reach_its_settings():
     (["privacy", "--encoder", "lens", "--match", "*fcnn*", "--out", "x"], "--match"),
     (["privacy", "--encoder", "lens", "--attack-seeds", "0", "--out", "x"], "attack_seeds"),
     (["privacy", "--encoder", "lens", "--learned-schedule", "cosine", "--out", "x"], "schedule"),
+    (["privacy", "--encoder", "lens", "--learned-inputs", "pca", "--out", "x"], "inputs"),
 ])
 def test_errors_are_one_line(argv, needle, capsys):
     assert main(argv) == 2
