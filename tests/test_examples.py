@@ -315,9 +315,13 @@ def test_budget_table_says_where_an_attacker_levels_off(tmp_path):
     grid[-1]["reid_top1"] = 0.45
     (row,) = mod.size_rows(grid, table[:2])
     assert (row["attacker"], row["max_epochs"], row["change_pts"]) == ("default, longer", 200.0, "+9.0")
-    # so is another grid's (the standardised attacker's), under its own name
+    # so is another grid's (the standardised attacker's), under its own name; a grid's point is set against a
+    # table row only when the same network measured both (size and input scaling; none given: standardise)
     (row,) = mod.size_rows([{**r, "attacker": "standardised"} for r in grid], table[:2])
     assert (row["attacker"], row["change_pts"]) == ("standardised, longer", "+9.0")
+    assert mod.size_rows([{**r, "attacker_inputs": "whiten"} for r in grid], table[:2]) == []
+    whitened = [{**t, "attacker_inputs": "whiten"} for t in table[:2]]
+    assert len(mod.size_rows([{**r, "attacker_inputs": "whiten"} for r in grid], whitened)) == 1
     assert mod.grid_of("standardised") == "standardised" and mod.grid_of("former-larger") == "former"
     assert mod.grid_of("larger") == "default"
     # both grids are tabled, each under its attacker's name; a file whose ending names no attacker is refused

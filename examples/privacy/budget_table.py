@@ -140,13 +140,20 @@ def budget_markdown(rows: list[dict]) -> str:
     return "\n".join(out)
 
 
+def same_attacker(a: dict, b: dict) -> bool:
+    """Whether two rows were measured by the same network: its size and input scaling (a row without
+    ``attacker_inputs`` predates the setting: standardise)."""
+    inputs = lambda r: r.get("attacker_inputs") or "standardise"  # noqa: E731
+    return a.get("attacker_size") == b.get("attacker_size") and inputs(a) == inputs(b)
+
+
 def size_rows(rows: list[dict], table: list[dict] | None = None) -> list[dict]:
     """Each attacker that is not a grid (:data:`GRIDS`) beside its reference: the camera's privacy-table row for
     the same attack (``table``: the cameras' rows, 3 seeds averaged) where given, else its own grid's point at the
     same pairs and the most epochs up to its own (a longer-trained attacker's 200 against the grid's 50); and
     beside the table's strongest black-box attack on that camera. With ``table``, the grids' points at the table's
-    pairs and more epochs than its row (``<grid>, longer``, e.g. ``default, longer``: the table's attacker trained
-    longer) are set against it too."""
+    pairs and more epochs than its row, measured by the same network (:func:`same_attacker`), are set against it
+    too (``<grid>, longer``, e.g. ``default, longer``: the table's attacker trained longer)."""
     def grid_point(b: dict) -> dict | None:
         same = [r for r in rows if r["attacker"] == grid_of(b["attacker"]) and r["max_epochs"] <= b["max_epochs"]
                 and all(r[k] == b[k] for k in ("encoder", "embedding", "attack", "n_pairs"))]
@@ -154,9 +161,9 @@ def size_rows(rows: list[dict], table: list[dict] | None = None) -> list[dict]:
 
     table = table or []
 
-    def longer(r: dict) -> bool:  # a grid's point trained longer than the table's row
+    def longer(r: dict) -> bool:  # a grid's point trained longer than the table's row by the same attacker
         ref = next((t for t in table if all(t[k] == r[k] for k in ("encoder", "embedding", "attack"))), None)
-        return (r["attacker"] in GRIDS and ref is not None and r["n_pairs"] == ref["n_pairs"]
+        return (r["attacker"] in GRIDS and ref is not None and same_attacker(r, ref) and r["n_pairs"] == ref["n_pairs"]
                 and r["max_epochs"] > ref["max_epochs"])
 
     out = []
