@@ -12,8 +12,8 @@ variants (``-former-larger``: ``--hidden 1024``; ``-former-longer``: ``--epochs 
 ``--schedule one_cycle --lr 3e-3``). Writes into OUT:
 
 * ``budget.csv``: every row of every study, with ``attacker`` the file's ending (``default`` for none);
-* ``budget.md``: per grid (the table's, the standardised and the former attacker's), cell and attack, re-identification top-1 [%]
-  with its Wilson 95 % interval over pairs (rows) x maximum epochs (columns), and whether it has levelled off:
+* ``budget.md``: per grid (the table's, the standardised and the former attacker's), cell and attack,
+  re-identification top-1 [%] with its Wilson 95 % interval over pairs (rows) x maximum epochs (columns), and whether it has levelled off:
   the largest budget re-identifies less than :data:`RISE` (3 points) more than the next smaller pair count at
   the same epochs and the next smaller epoch budget at the same pairs;
 * ``attacker_size.md``: every attacker that is not a grid (the larger and the former ones), and the table
@@ -31,13 +31,14 @@ from pathlib import Path
 
 from optoenc.privacy.report import COLUMNS, read_table, strength, write_table
 from optoenc.privacy.settings import LearnedConfig
-from optoenc.privacy.tables import acc_text, count_text as _n, rate_text
+from optoenc.privacy.tables import acc_text, count_text as _n, inputs_text, rate_text
 from optoenc.training.rundir import atomic_write_text
 
 _TABLE = LearnedConfig()
 #: The attackers, by the ending of their files' names (after ``<encoder>-<embedding>-``; ``default``: none):
-#: the table's attacker, and the former table attacker (the table's attacker before the budget study showed it
-#: still rising at 6x8), each with the settings its rows were trained with (budget_study.py's options).
+#: the table's attacker, the same on standardised inputs (the table's attacker before whitening) and the former
+#: table attacker (before the budget study showed it still rising at 6x8), each with the settings its rows were
+#: trained with (budget_study.py's options).
 _FORMER = "--schedule constant --lr 1e-3 --inputs standardise"
 ATTACKERS = {
     "default": f"the table's attacker (the defaults: MLP {_TABLE.hidden} units, {_TABLE.schedule} to {_TABLE.lr:g}, "
@@ -143,8 +144,7 @@ def budget_markdown(rows: list[dict]) -> str:
 def same_attacker(a: dict, b: dict) -> bool:
     """Whether two rows were measured by the same network: its size and input scaling (a row without
     ``attacker_inputs`` predates the setting: standardise)."""
-    inputs = lambda r: r.get("attacker_inputs") or "standardise"  # noqa: E731
-    return a.get("attacker_size") == b.get("attacker_size") and inputs(a) == inputs(b)
+    return a.get("attacker_size") == b.get("attacker_size") and inputs_text(a) == inputs_text(b)
 
 
 def size_rows(rows: list[dict], table: list[dict] | None = None) -> list[dict]:

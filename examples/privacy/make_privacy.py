@@ -38,7 +38,7 @@ from optoenc.privacy import defence
 from optoenc.privacy.report import (COLUMNS, best_per_threat_model, document, read_table, save_frontiers, strength,
                                     write_table)
 from optoenc.privacy.settings import THREAT_MODELS, PrivacyConfig
-from optoenc.privacy.tables import acc_text, count_text, csv_text, given, rate_text
+from optoenc.privacy.tables import acc_text, count_text, csv_text, given, inputs_text, rate_text
 from optoenc.training.rundir import atomic_write_text
 
 HERE = Path(__file__).parent
@@ -81,8 +81,8 @@ def headline(best: list[dict], rows: list[dict] = ()) -> str:
     (``attacker_size``, ``attacker_inputs``; 256 standardise the former attacker, constant rate; 1024 whiten the
     current defaults, one-cycle; a table without ``attacker_inputs`` predates whitening: standardise)."""
     by = {(r["encoder"], r["embedding"], r["threat_model"]): r for r in best}
-    units = {(r["encoder"], r["embedding"]): f"{count_text(r['attacker_size'])} {r.get('attacker_inputs') or 'standardise'}"
-             for r in rows if r["attack"] == "learned" and given(r.get("attacker_size"))}
+    units = {(r["encoder"], r["embedding"]): f"{count_text(r['attacker_size'])} {inputs_text(r)}" for r in rows
+             if r["attack"] == "learned" and given(r.get("attacker_size"))}
     cells = [(e, s) for e in ENCODERS for s in EMBEDDINGS if any((e, s, t) in by for t in THREAT_MODELS)]
     head = ["encoder", "embedding", "test acc"]
     for t in THREAT_MODELS:

@@ -14,7 +14,7 @@ from typing import Any, Sequence
 
 from ..training.rundir import atomic_write_text
 
-__all__ = ["csv_text", "write_csv", "rate_text", "acc_text", "count_text", "given"]
+__all__ = ["csv_text", "write_csv", "rate_text", "acc_text", "count_text", "given", "inputs_text"]
 
 
 def _fmt(v: Any) -> str:
@@ -62,3 +62,8 @@ def count_text(v: Any) -> str:
     """A count as read back from CSV (a float, ``1024.0``) written as a whole number (``1024``); other values as
     they are."""
     return str(int(v)) if isinstance(v, float) and v == int(v) else str(v)
+
+
+def inputs_text(r: dict) -> str:
+    """A learned row's input scaling (``attacker_inputs``); a row without one predates the setting: standardise."""
+    return r.get("attacker_inputs") or "standardise"
