@@ -62,13 +62,17 @@ def test_the_cli_refuses_a_bad_thread_count_in_one_line(capsys, tmp_path):
 
 
 class _FakeProcess:
-    """A cell process that runs ``seconds`` and records, at its start, which cells were running with it."""
+    """A cell process that runs ``seconds`` and records, at its start, which cells were running with it.
+
+    ``seconds`` (0.5) is what a cell started beside it has to start in: the sweep launches the second cell
+    microseconds after the first on a quiet machine, but a loaded one (the suite's other workers) has delayed it
+    past 0.15 s, so "ran beside" must not depend on sub-second scheduling."""
 
     log: list = []
     lock = threading.Lock()
     now: set = set()
 
-    def __init__(self, name: str, threads: int, seconds: float = 0.15):
+    def __init__(self, name: str, threads: int, seconds: float = 0.5):
         self.name, self.threads, self.seconds, self.returncode = name, threads, seconds, None
         with self.lock:
             self.log.append((name, threads, frozenset(self.now)))
