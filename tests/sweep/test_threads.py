@@ -64,9 +64,8 @@ def test_the_cli_refuses_a_bad_thread_count_in_one_line(capsys, tmp_path):
 class _FakeProcess:
     """A cell process that runs ``seconds`` and records, at its start, which cells were running with it.
 
-    ``seconds`` (0.5) is what a cell started beside it has to start in: the sweep launches the second cell
-    microseconds after the first on a quiet machine, but a loaded one (the suite's other workers) has delayed it
-    past 0.15 s, so "ran beside" must not depend on sub-second scheduling."""
+    ``seconds`` (0.5) is how long the first cell of a pair runs, so the second, launched from another worker
+    thread, starts while it still runs even on a loaded machine (thread start-up there takes milliseconds)."""
 
     log: list = []
     lock = threading.Lock()
@@ -101,10 +100,13 @@ def test_a_cell_that_sets_its_threads_gets_them_and_holds_its_share_of_the_sweep
         p.path.mkdir()
     assert runner.run(cells, tmp_path, workers=2, threads=1, start="subprocess") == {}
     starts = {name: (threads, beside) for name, threads, beside in _FakeProcess.log}
-    assert [name for name, *_ in _FakeProcess.log] == ["a", "b", "big", "c", "d"]
+    order = [name for name, *_ in _FakeProcess.log]
+    # Two cells admitted together launch from two worker threads, in either order: the queue's order holds
+    # between the pairs and the two-thread cell, not within a pair.
+    assert set(order[:2]) == {"a", "b"} and order[2] == "big" and set(order[3:]) == {"c", "d"}
     assert starts["big"] == (2, frozenset()) and all(starts[n][0] == 1 for n in "abcd")
     assert "big" not in starts["c"][1] | starts["d"][1]  # nothing ran beside it
-    assert starts["b"][1] == {"a"}  # the one-thread cells still run two at once
+    assert starts[order[1]][1] == {order[0]}  # the one-thread cells still run two at once
 
 
 def test_a_cell_holds_its_threads_at_most_the_whole_budget_and_keeps_the_threads_it_asked_for():
