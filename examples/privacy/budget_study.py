@@ -10,10 +10,11 @@ the attacker afresh with early stopping on a validation part of its pairs; the C
 columns (``n_pairs``, ``max_epochs``, ``epochs_run``, ``val_loss``, ``reid_top1`` with its Wilson interval, ...).
 Re-identification has levelled off where a row with more pairs or more epochs re-identifies less than 3 points
 more than the row before it. The attackers are the library's defaults (the table's attacker) unless
-``--hidden``, ``--channels``, ``--lr``, ``--schedule`` or ``--inputs`` say otherwise: the check that the table's attacker is
-converged is the same grid point with four times the maximum epochs (``--epochs 200``) or a wider MLP
+``--hidden``, ``--channels``, ``--lr``, ``--schedule`` or ``--inputs`` say otherwise: the check that the table's
+attacker is converged is the same grid point with four times the maximum epochs (``--epochs 200``) or a wider MLP
 (``--hidden 2048``) changing re-identification by less than 3 points; the former table attacker is
-``--hidden 256 --schedule constant --lr 1e-3 --inputs standardise`` (regenerate.sh names every study). An interrupted study keeps its finished grid
+``--hidden 256 --schedule constant --lr 1e-3 --inputs standardise`` (regenerate.sh names every study). An
+interrupted study keeps its finished grid
 points in ``OUT.partial/`` and resumes there (removed once the CSV is written).
 """
 

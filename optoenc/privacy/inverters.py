@@ -26,7 +26,7 @@ import torch
 from torch import nn
 
 from ..errors import ConfigError
-from .settings import LearnedConfig
+from .settings import INPUTS, LearnedConfig
 
 __all__ = ["Inverter", "ConvInverter", "FitReport", "build", "fit", "device", "scaling", "NETWORKS", "WHITEN_FLOOR"]
 
@@ -83,7 +83,7 @@ def scaling(embeddings: torch.Tensor, how: str = "whiten") -> nn.Module:
     if how == "standardise":
         return _Standardise(float(embeddings.mean()), float(embeddings.std()))
     if how != "whiten":
-        raise ConfigError("learned attacker inputs", how, "whiten or standardise")
+        raise ConfigError("learned attacker inputs", how, f"one of {', '.join(INPUTS)}")
     flat = embeddings.reshape(len(embeddings), -1)
     n, d = flat.shape
     mean = flat.double().mean(0)
