@@ -406,20 +406,49 @@ def test_make_privacy_derives_its_tables_from_the_committed_csvs_and_checks_them
     write_table(rows[:2], out / "privacy" / "cameras" / "b-lens.csv")
     budget = [_budget_row(p, e, 0.3) for p in (1000, 60000) for e in (5, 50)] + [_budget_row(60000, 50, 0.31, 1024, "larger")]
     write_table(budget, out / "privacy" / "budget.csv", columns=(*COLUMNS, "attacker"))
-    defended = [{**rows[1], "patterns": k, "adversary_weight": 0.0, "seed": 0, "epochs": 5} for k in (1, 4)]
-    defence.write_defence(defence.defence_rows([]) + defended, out / "privacy")
+    # one committed table per defence run (its rows with its settings); defence.csv compares each with its baseline
+    for k, psnr in ((1, 20.0), (4, 15.0)):
+        run = [{**rows[1], "psnr": psnr, "patterns": k, "adversary_weight": 0.0, "seed": 0, "epochs": 5}]
+        write_table(run, out / "privacy" / "defence" / f"k{k}.csv", columns=defence.RUN_COLUMNS)
     assert mod.main(["--out", str(out)]) == 0
     for name in ("privacy.md", "privacy_best.csv", "headline.md", "budget.md", "attacker_size.md", "defence.md",
                  "privacy_utility.png", "budget.png"):
         assert (out / "privacy" / name).stat().st_size > 0, name
     assert "| lens | 6x8 | 73.0 % | admm | 20.0 [17.6, 22.6] |" in (out / "privacy" / "headline.md").read_text()
     assert [r["encoder"] for r in read_table(out / "privacy.csv")] == ["lens", "lens", "learned_slm"]
+    assert [r["psnr_drop"] for r in read_table(out / "privacy" / "defence.csv")] == [0.0, 0.25]
     assert mod.main(["--check", "--out", str(out)]) == 0
     md = out / "privacy" / "headline.md"
     md.write_text(md.read_text().replace("20.0 [17.6, 22.6]", "2.0 [17.6, 22.6]"))
     capsys.readouterr()
     assert mod.main(["--check", "--out", str(out)]) == 1
     assert "headline.md:3: committed" in capsys.readouterr().err
+
+
+def test_make_privacy_commits_each_measured_defence_run_with_its_settings(tmp_path):
+    """--defence SWEEP copies every run directory with privacy/privacy.csv in as its own table, its K, lambda, seed
+    and epochs read from its config; runs not yet measured are left out, and defence.csv compares each run with
+    the baseline of its embedding (K = 1, lambda = 0)."""
+    from optoenc.privacy import defence
+    from optoenc.privacy.report import read_table, write_table
+    from optoenc.training.rundir import atomic_write_text
+
+    mod = _make_privacy()
+    sweep, out = tmp_path / "defence", tmp_path / "results"
+    for name, k, psnr in (("k1", 1, 20.0), ("k4", 4, 15.0), ("k8", 8, None)):
+        run = sweep / "cells" / name
+        atomic_write_text(run / "config.yaml", f"seed: 0\nencoder:\n  patterns: {k}\ntrainer:\n  max_epochs: 5\n")
+        atomic_write_text(run / "summary.json", "{}")
+        if psnr is not None:
+            row = {**_best_row("learned_slm", "6x8", 0.9, 0.5, "known_mask", "admm"), "psnr": psnr, "readability": 0.8}
+            write_table([row], run / "privacy" / "privacy.csv")
+    assert mod.main(["--defence", str(sweep), "--out", str(out)]) == 0
+    assert sorted(p.name for p in (out / "privacy" / "defence").iterdir()) == ["k1.csv", "k4.csv"]
+    k4 = read_table(out / "privacy" / "defence" / "k4.csv")[0]
+    assert (k4["patterns"], k4["adversary_weight"], k4["epochs"]) == (4.0, 0.0, 5.0)
+    assert [r["psnr_drop"] for r in read_table(out / "privacy" / "defence.csv")] == [0.0, 0.25]
+    assert mod.main(["--check", "--out", str(out)]) == 0
+    assert defence.RUN_COLUMNS[-1] == "run" and "psnr_drop" not in defence.RUN_COLUMNS
 
 
 def test_privacy_regeneration_script_parses_and_names_existing_pieces():

@@ -1,7 +1,7 @@
 """Write docs/results/privacy* from the privacy measurements; ``--check`` compares the committed tables.
 
     python examples/privacy/make_privacy.py --table W/privacy/all --cells T1/cells --budget W/budget \\
-        --defence W/defence/privacy        # copy the measurements in, then derive the tables and figures
+        --defence W/defence                # copy the measurements in, then derive the tables and figures
     python examples/privacy/make_privacy.py            # derive them again from the committed CSVs
     python examples/privacy/make_privacy.py --check    # exit 0 iff every derived table is what it would write;
                                                        # else 1, naming the first difference
@@ -14,15 +14,17 @@ The measurements (copied in, the data the rest is derived from):
   ``--cameras DIR`` every run directory of DIR that has one; with them the example reconstructions
   (``privacy/<encoder>-<embedding>_<attack>.png``);
 * ``OUT/privacy/budget.csv``: every row of ``budget_study.py``'s CSVs in ``--budget`` (``budget_table.py``);
-* ``OUT/privacy/defence.csv``: from ``--defence``, the folder ``optoenc privacy --sweep DEFENCE_RUNS --defence``
-  wrote.
+* ``OUT/privacy/defence/<run>.csv``: every attack on one defence run with its settings (K, lambda, seed,
+  epochs), from each run directory of ``--defence`` (the sweep folder of ``examples/privacy/defence.yaml``) that
+  has ``privacy/privacy.csv``.
 
 Derived from those CSVs alone (``--check`` compares these text tables): ``OUT/privacy.csv`` (every camera's
 attacks, encoders and embeddings in Table 1's order), ``privacy/privacy.md`` (the strongest attack
 per threat model, then every attack), ``privacy_best.csv``, ``headline.md`` (one line per encoder and embedding:
 accuracy and each threat model's strongest attack with its re-identification interval; then which cameras keep
 the strongest black-box re-identification within 2x chance at most 1 point below the best accuracy),
-``budget.md``, ``attacker_size.md``, ``defence.md``; and the figures (``privacy_utility*.png``, ``budget.png``;
+``budget.md``, ``attacker_size.md``, ``defence.csv`` and ``defence.md`` (each defence run against its baseline);
+and the figures (``privacy_utility*.png``, ``budget.png``;
 redrawn, not compared). Nothing is trained.
 """
 
@@ -35,8 +37,8 @@ import sys
 from pathlib import Path
 
 from optoenc.privacy import defence
-from optoenc.privacy.report import (COLUMNS, best_per_threat_model, document, read_table, save_frontiers, strength,
-                                    write_table)
+from optoenc.privacy.report import (COLUMNS, PRIVACY_DIR, best_per_threat_model, document, read_table, save_frontiers,
+                                    strength, sweep_cells, write_table)
 from optoenc.privacy.settings import THREAT_MODELS, PrivacyConfig
 from optoenc.privacy.tables import acc_text, count_text, csv_text, given, inputs_text, rate_text
 from optoenc.training.rundir import atomic_write_text
@@ -175,8 +177,11 @@ def derive(out: Path, chance: float = CHANCE) -> dict[Path, str]:
         bt, budget = _load("budget_table"), read_table(priv / "budget.csv")
         texts[priv / "budget.md"] = bt.budget_markdown(budget)
         texts[priv / "attacker_size.md"] = bt.size_markdown(bt.size_rows(budget, rows))
-    if (priv / "defence.csv").is_file():
-        texts[priv / "defence.md"] = defence.markdown(read_table(priv / "defence.csv"))
+    defended = [r for path in sorted((priv / "defence").glob("*.csv")) for r in read_table(path)]
+    if defended:
+        rows = defence.compare(defended)
+        texts[priv / "defence.csv"] = csv_text(rows, defence.COLUMNS)
+        texts[priv / "defence.md"] = defence.markdown(rows)
     return texts
 
 
@@ -220,7 +225,12 @@ def collect(out: Path, table: Path | None = None, cells: Path | None = None, bud
             raise SystemExit(f"make_privacy: --budget {budget}: no budget CSVs")
         written.append(write_table(rows, priv / "budget.csv", columns=bt.BUDGET_COLUMNS))
     if defence_dir is not None:
-        written.append(Path(shutil.copyfile(defence_dir / "defence.csv", priv / "defence.csv")))
+        measured = [run for run in sweep_cells(defence_dir) if (run / PRIVACY_DIR / "privacy.csv").is_file()]
+        if not measured:
+            raise SystemExit(f"make_privacy: --defence {defence_dir}: no run directory has privacy/privacy.csv")
+        for run in measured:
+            rows = defence.tag(run, read_table(run / PRIVACY_DIR / "privacy.csv"))
+            written.append(write_table(rows, priv / "defence" / f"{run.name}.csv", columns=defence.RUN_COLUMNS))
     return written
 
 
@@ -242,7 +252,8 @@ def main(argv=None) -> int:
     ap.add_argument("--cameras", type=Path, help="a folder of run directories: copy in every one that has "
                     "privacy/privacy.csv")
     ap.add_argument("--budget", type=Path, help="folder of budget_study.py CSVs")
-    ap.add_argument("--defence", type=Path, help="folder of `optoenc privacy --sweep ... --defence` (defence.csv)")
+    ap.add_argument("--defence", type=Path, help="the defence runs' sweep folder: copy in every run that has "
+                    "privacy/privacy.csv")
     ap.add_argument("--out", type=Path, default=RESULTS, help="docs/results (default)")
     ap.add_argument("--check", action="store_true", help="compare the committed derived tables with what would be "
                     "written; exit 1 naming the first difference")

@@ -90,4 +90,4 @@ wait
 optoenc privacy --sweep "$W/defence" --defence $D > "$W/privacy-defence.log" 2>&1
 
 # 6. Into docs/results.
-python "$HERE/make_privacy.py" --table "$W/privacy/all" --cells "$T1" --budget "$W/budget" --defence "$W/defence/privacy"
+python "$HERE/make_privacy.py" --table "$W/privacy/all" --cells "$T1" --budget "$W/budget" --defence "$W/defence"

@@ -14,8 +14,9 @@ change against the same attack on the baseline:
 ``admm_search`` and ``learned_one`` (only against ``K > 1``) are compared with
 the baseline's ``admm`` and ``learned``.
 
-Written by ``optoenc privacy --sweep DIR --defence`` to
-``DIR/privacy/defence.{csv,md}`` (docs/results/privacy/defence.csv through examples/privacy/make_privacy.py).
+Written by ``optoenc privacy --sweep DIR --defence`` to ``DIR/privacy/defence.{csv,md}``. Each run's own rows
+with its settings (:func:`tag`, :data:`RUN_COLUMNS`) are what examples/privacy/make_privacy.py commits, one file a
+run (docs/results/privacy/defence/); :func:`compare` derives the table from them.
 """
 
 from __future__ import annotations
@@ -26,14 +27,18 @@ from typing import Any, Sequence
 from ..training.rundir import RUN_FILES, atomic_write_text
 from .tables import rate_text, write_csv
 
-__all__ = ["COLUMNS", "cell_settings", "defence_rows", "write_defence", "markdown"]
+__all__ = ["COLUMNS", "RUN_COLUMNS", "cell_settings", "tag", "compare", "defence_rows", "write_defence", "markdown"]
 
 COLUMNS = (
     "encoder", "embedding", "patterns", "adversary_weight", "seed", "epochs", "test_acc", "threat_model", "attack", "n_pairs",
-    "max_epochs", "epochs_run", "val_loss", "attack_seeds", "psnr", "ssim", "readability", "readability_ci_low",
+    "max_epochs", "epochs_run", "val_loss", "attack_seeds", "attacker_size", "attacker_inputs", "psnr", "ssim", "readability", "readability_ci_low",
     "readability_ci_high", "reid_top1", "reid_top1_se", "reid_ci_low", "reid_ci_high", "psnr_drop", "ssim_drop", "reid_change", "readability_change",
     "acc_change", "count", "run",
 )
+#: The columns :func:`compare` derives from a run's rows and its baseline's.
+CHANGES = ("psnr_drop", "ssim_drop", "reid_change", "readability_change", "acc_change")
+#: One run's rows with its settings (:func:`tag`): the committed measurement of one defence run.
+RUN_COLUMNS = tuple(c for c in COLUMNS if c not in CHANGES)
 
 
 def cell_settings(run_dir: str | Path) -> dict[str, Any]:
@@ -60,19 +65,20 @@ def _key(r: dict, baseline: bool = False) -> tuple:
     return (r["encoder"], r["embedding"], r.get("seed", 0), attack, "" if pairs in ("", None) else int(float(pairs)))
 
 
-def defence_rows(cells: Sequence[tuple[str | Path, Sequence[dict]]]) -> list[dict[str, Any]]:
-    """Rows of every cell with its settings and its change against the baseline cell of its embedding.
+def tag(run_dir: str | Path, rows: Sequence[dict]) -> list[dict[str, Any]]:
+    """``rows`` (one run's privacy rows) with the run's settings (:func:`cell_settings`) attached."""
+    s = cell_settings(run_dir)
+    return [{**r, **s} for r in rows]
 
-    Args:
-        cells: ``(run directory, its privacy rows)`` pairs (as ``report.measure_run`` returns them).
-    """
-    tagged = []
-    for run_dir, rows in cells:
-        s = cell_settings(run_dir)
-        tagged += [{**r, **s} for r in rows]
-    base = {_key(r, baseline=True): r for r in tagged if r["patterns"] == 1 and r["adversary_weight"] == 0}
+
+def compare(tagged: Sequence[dict]) -> list[dict[str, Any]]:
+    """Rows of several runs (each with its settings, :func:`tag`), sorted, with the change of each against the
+    same attack on the baseline of its embedding and seed (K = 1, lambda = 0); a row without a baseline keeps its
+    change columns empty."""
+    base = {_key(r, baseline=True): r for r in tagged if float(r["patterns"]) == 1 and float(r["adversary_weight"]) == 0}
     out = []
-    for r in sorted(tagged, key=lambda r: (r["embedding"], r["patterns"], r["adversary_weight"], r["seed"])):
+    key = lambda r: (r["embedding"], float(r["patterns"]), float(r["adversary_weight"]), float(r["seed"]))  # noqa: E731
+    for r in sorted(tagged, key=key):
         row = dict(r)
         b = base.get(_key(r))
         if b is not None:
@@ -83,6 +89,15 @@ def defence_rows(cells: Sequence[tuple[str | Path, Sequence[dict]]]) -> list[dic
             row["acc_change"] = float(r["test_acc"]) - float(b["test_acc"])
         out.append(row)
     return out
+
+
+def defence_rows(cells: Sequence[tuple[str | Path, Sequence[dict]]]) -> list[dict[str, Any]]:
+    """Rows of every cell with its settings and its change against the baseline cell of its embedding.
+
+    Args:
+        cells: ``(run directory, its privacy rows)`` pairs (as ``report.measure_run`` returns them).
+    """
+    return compare([r for run_dir, rows in cells for r in tag(run_dir, rows)])
 
 
 def write_defence(rows: Sequence[dict], out_dir: str | Path) -> list[Path]:
