@@ -30,10 +30,10 @@ from .tables import rate_text, write_csv
 __all__ = ["COLUMNS", "RUN_COLUMNS", "cell_settings", "tag", "compare", "defence_rows", "write_defence", "markdown"]
 
 COLUMNS = (
-    "encoder", "embedding", "patterns", "adversary_weight", "seed", "epochs", "test_acc", "threat_model", "attack", "n_pairs",
-    "max_epochs", "epochs_run", "val_loss", "attack_seeds", "attacker_size", "attacker_inputs", "psnr", "ssim", "readability", "readability_ci_low",
-    "readability_ci_high", "reid_top1", "reid_top1_se", "reid_ci_low", "reid_ci_high", "psnr_drop", "ssim_drop", "reid_change", "readability_change",
-    "acc_change", "count", "run",
+    "encoder", "embedding", "patterns", "adversary_weight", "seed", "epochs", "test_acc", "threat_model", "attack",
+    "n_pairs", "max_epochs", "epochs_run", "val_loss", "attack_seeds", "attacker_size", "attacker_inputs", "psnr",
+    "ssim", "readability", "readability_ci_low", "readability_ci_high", "reid_top1", "reid_top1_se", "reid_ci_low",
+    "reid_ci_high", "psnr_drop", "ssim_drop", "reid_change", "readability_change", "acc_change", "count", "run",
 )
 #: The columns :func:`compare` derives from a run's rows and its baseline's.
 CHANGES = ("psnr_drop", "ssim_drop", "reid_change", "readability_change", "acc_change")
@@ -75,7 +75,8 @@ def compare(tagged: Sequence[dict]) -> list[dict[str, Any]]:
     """Rows of several runs (each with its settings, :func:`tag`), sorted, with the change of each against the
     same attack on the baseline of its embedding and seed (K = 1, lambda = 0); a row without a baseline keeps its
     change columns empty."""
-    base = {_key(r, baseline=True): r for r in tagged if float(r["patterns"]) == 1 and float(r["adversary_weight"]) == 0}
+    base = {_key(r, baseline=True): r for r in tagged
+            if float(r["patterns"]) == 1 and float(r["adversary_weight"]) == 0}
     out = []
     key = lambda r: (r["embedding"], float(r["patterns"]), float(r["adversary_weight"]), float(r["seed"]))  # noqa: E731
     for r in sorted(tagged, key=key):
