@@ -410,7 +410,15 @@ def test_make_privacy_derives_its_tables_from_the_committed_csvs_and_checks_them
     for k, psnr in ((1, 20.0), (4, 15.0)):
         run = [{**rows[1], "psnr": psnr, "patterns": k, "adversary_weight": 0.0, "seed": 0, "epochs": 5}]
         write_table(run, out / "privacy" / "defence" / f"k{k}.csv", columns=defence.RUN_COLUMNS)
+    # the document beside OUT: its derived parts are written between their markers, its prose kept
+    doc = tmp_path / "privacy.md"
+    doc.write_text("# Privacy\n\n<!-- derived: headline -->\nstale\n<!-- /derived -->\n\nprose\n\n"
+                   "<!-- derived: question -->\n<!-- /derived -->\n")
     assert mod.main(["--out", str(out)]) == 0
+    text = doc.read_text()
+    assert "stale" not in text and text.startswith("# Privacy\n\n<!-- derived: headline -->\n\n| encoder |")
+    assert "| lens | 6x8 | 73.0 % | admm | 20.0 [17.6, 22.6] |" in text and "\n\nprose\n\n" in text
+    assert "Cameras that meet both: none." in text and text.endswith("\n\n<!-- /derived -->\n")
     for name in ("privacy.md", "privacy_best.csv", "headline.md", "budget.md", "attacker_size.md", "defence.md",
                  "privacy_utility.png", "budget.png"):
         assert (out / "privacy" / name).stat().st_size > 0, name
@@ -423,6 +431,13 @@ def test_make_privacy_derives_its_tables_from_the_committed_csvs_and_checks_them
     capsys.readouterr()
     assert mod.main(["--check", "--out", str(out)]) == 1
     assert "headline.md:3: committed" in capsys.readouterr().err
+    assert mod.main(["--out", str(out)]) == 0  # written again; then the document's copy edited by hand
+    doc.write_text(doc.read_text().replace("20.0 [17.6, 22.6]", "2.0 [17.6, 22.6]"))
+    capsys.readouterr()
+    assert mod.main(["--check", "--out", str(out)]) == 1
+    assert f"{doc}:7: committed" in capsys.readouterr().err
+    with pytest.raises(SystemExit, match="derived part 'table' unknown"):
+        mod.embed("<!-- derived: table -->\n<!-- /derived -->", {"headline": ""})
 
 
 def test_make_privacy_commits_each_measured_defence_run_with_its_settings(tmp_path):

@@ -24,7 +24,9 @@ per threat model, then every attack), ``privacy_best.csv``, ``headline.md`` (one
 accuracy and each threat model's strongest attack with its re-identification interval; then which cameras keep
 the strongest black-box re-identification within 2x chance at most 1 point below the best accuracy),
 ``budget.md``, ``attacker_size.md``, ``defence.csv`` and ``defence.md`` (each defence run against its baseline);
-and the figures (``privacy_utility*.png``, ``budget.png``;
+the parts of ``OUT/../privacy.md`` (docs/privacy.md) between ``<!-- derived: NAME -->`` and ``<!-- /derived -->``
+(``headline``: the headline table; ``question``: the cameras within a point and twice chance; the prose around
+them is kept); and the figures (``privacy_utility*.png``, ``budget.png``;
 redrawn, not compared). Nothing is trained.
 """
 
@@ -32,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import re
 import shutil
 import sys
 from pathlib import Path
@@ -150,6 +153,24 @@ def question(best: list[dict], chance: float = CHANCE, factor: float = FACTOR, m
     return "\n".join(lines) + "\n"
 
 
+#: A derived part of docs/privacy.md: its opening marker (naming the part), the text, its closing marker.
+_PART = re.compile(r"(<!-- derived: ([\w-]+) -->\n)(.*?)(<!-- /derived -->)", re.S)
+
+
+def embed(doc: str, parts: dict[str, str], where: str = "docs/privacy.md") -> str:
+    """``doc`` with the text between each ``<!-- derived: NAME -->`` and ``<!-- /derived -->`` replaced by
+    ``parts[NAME]`` (a blank line either side); the rest as it is.
+
+    Raises:
+        SystemExit: a marker names a part not in ``parts``.
+    """
+    def put(m: re.Match) -> str:
+        if m.group(2) not in parts:
+            raise SystemExit(f"make_privacy: {where}: derived part {m.group(2)!r} unknown (one of {', '.join(parts)})")
+        return f"{m.group(1)}\n{parts[m.group(2)].rstrip()}\n\n{m.group(4)}"
+    return _PART.sub(put, doc)
+
+
 def _camera_order(path: Path) -> tuple:
     rows = read_table(path)
     enc, emb = (rows[0]["encoder"], rows[0]["embedding"]) if rows else ("", "")
@@ -172,7 +193,11 @@ def derive(out: Path, chance: float = CHANCE) -> dict[Path, str]:
         texts[out / "privacy.csv"] = csv_text(rows, COLUMNS)
         texts[priv / "privacy.md"] = document(rows)
         texts[priv / "privacy_best.csv"] = csv_text(best, COLUMNS)
-        texts[priv / "headline.md"] = headline(best, rows) + "\n" + question(best, chance)
+        parts = {"headline": headline(best, rows), "question": question(best, chance)}
+        texts[priv / "headline.md"] = parts["headline"] + "\n" + parts["question"]
+        doc = out.parent / "privacy.md"
+        if doc.is_file():
+            texts[doc] = embed(doc.read_text(), parts, str(doc))
     if (priv / "budget.csv").is_file():
         bt, budget = _load("budget_table"), read_table(priv / "budget.csv")
         texts[priv / "budget.md"] = bt.budget_markdown(budget)
