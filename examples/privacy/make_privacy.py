@@ -153,8 +153,9 @@ def question(best: list[dict], chance: float = CHANCE, factor: float = FACTOR, m
     return "\n".join(lines) + "\n"
 
 
-#: A derived part of docs/privacy.md: its opening marker (naming the part), the text, its closing marker.
-_PART = re.compile(r"(<!-- derived: ([\w-]+) -->\n)(.*?)(<!-- /derived -->)", re.S)
+#: A derived part of docs/privacy.md: its opening marker (group 1, naming the part in group 2), the text to
+#: replace, its closing marker (group 3).
+_PART = re.compile(r"(<!-- derived: ([\w-]+) -->\n).*?(<!-- /derived -->)", re.S)
 
 
 def embed(doc: str, parts: dict[str, str], where: str = "docs/privacy.md") -> str:
@@ -167,7 +168,7 @@ def embed(doc: str, parts: dict[str, str], where: str = "docs/privacy.md") -> st
     def put(m: re.Match) -> str:
         if m.group(2) not in parts:
             raise SystemExit(f"make_privacy: {where}: derived part {m.group(2)!r} unknown (one of {', '.join(parts)})")
-        return f"{m.group(1)}\n{parts[m.group(2)].rstrip()}\n\n{m.group(4)}"
+        return f"{m.group(1)}\n{parts[m.group(2)].rstrip()}\n\n{m.group(3)}"
     return _PART.sub(put, doc)
 
 
